@@ -1,0 +1,39 @@
+# idsplat_ns: `make demo` (install, train on the built-in street, evaluate) and `make test`.
+PYTHON ?= python3
+VENV   ?= .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.idsplat-installed
+DEMO   := outputs/demo
+
+.PHONY: install test test-fast demo bench clean
+
+# torch is installed first and alone: `torch==2.13.0` takes the CPU wheel where one is provided,
+# so no later requirement can pull the multi-GB CUDA build.
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install --quiet --upgrade pip setuptools wheel
+	$(BIN)/pip install --quiet torch==2.13.0
+	$(BIN)/pip install --quiet -e ".[test]"
+	$(BIN)/idsplat-install-compat
+	touch $(STAMP)
+
+install: $(STAMP)
+
+test: install
+	$(BIN)/python -m pytest -q -p no:cacheprovider
+
+test-fast: install
+	$(BIN)/python -m pytest -q -m "not slow"
+
+demo: install
+	$(BIN)/ns-train idsplat-fast --vis tensorboard --output-dir outputs --experiment-name demo --timestamp run
+	$(BIN)/ns-eval --load-config $(DEMO)/idsplat-fast/run/config.yml \
+		--output-path $(DEMO)/eval.json --render-output-path $(DEMO)/renders
+	$(BIN)/python -m idsplat_ns.nerfstudio.report $(DEMO)/eval.json --renders $(DEMO)/renders \
+		--checkpoint-dir $(DEMO)/idsplat-fast/run/nerfstudio_models
+
+bench: install
+	$(BIN)/python bench/bench_rasterizer.py
+
+clean:
+	rm -rf $(VENV) outputs .pytest_cache

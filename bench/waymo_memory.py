@@ -1,0 +1,62 @@
+"""Peak memory of load_segment vs the number of frames asked for (Waymo v1, synthetic full-size lidar).
+
+Builds a segment by re-framing the real test frame (../shared/data/waymo/pvps_data_one_frame.tfrecord)
+with full-size synthetic range images (TOP 64x2650, four 200x600 side lidars, two returns), then
+loads N frames in a fresh process per N and prints peak RSS and the tracemalloc peak.
+
+    .venv/bin/python bench/waymo_memory.py [--frames 20] [--ns 1 2 5 10]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+FRAME = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "waymo" / "pvps_data_one_frame.tfrecord"
+
+CHILD = r"""
+import json, resource, sys, time, tracemalloc
+from idsplat_ns.data.waymo import load_segment
+path, start, end, lidar = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4] == "1"
+base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+tracemalloc.start()
+t = time.time()
+scene = load_segment(path, start=start, end=end, load_lidar=lidar)
+elapsed = time.time() - t
+_, peak = tracemalloc.get_traced_memory()
+rays = sum(s.num_rays for s in scene.lidar)
+print(json.dumps({"rss_import_mb": base / 1024, "rss_peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+                  "tracemalloc_peak_mb": peak / 2**20, "seconds": elapsed, "rays": rays}))
+"""
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=20, help="segment length (frames)")
+    parser.add_argument("--ns", type=int, nargs="+", default=[1, 2, 5, 10], help="frames to load")
+    parser.add_argument("--no-lidar", action="store_true", help="camera-only loads")
+    args = parser.parse_args()
+    from tqdm import tqdm
+
+    from idsplat_ns.data.waymo.fixtures import write_synthetic_frames_to
+
+    with tempfile.TemporaryDirectory() as tmp:
+        seg = Path(tmp) / "segment.tfrecord"
+        write_synthetic_frames_to(FRAME, seg, args.frames, progress=tqdm)
+        size_mb = seg.stat().st_size / 2**20
+        print(f"segment: {args.frames} frames, {size_mb:.0f} MB on disk ({size_mb / args.frames:.1f} MB/frame)")
+        print(f"{'N':>4} {'start':>5} {'rays':>10} {'RSS after import MB':>20} {'peak RSS MB':>12} {'tracemalloc peak MB':>20} {'s':>6}")
+        for n in args.ns:
+            for start in (0, args.frames - n):
+                out = subprocess.run([sys.executable, "-c", CHILD, str(seg), str(start), str(start + n), "0" if args.no_lidar else "1"],
+                                     capture_output=True, text=True, check=True)
+                r = json.loads(out.stdout.strip().splitlines()[-1])
+                print(f"{n:>4} {start:>5} {r['rays']:>10} {r['rss_import_mb']:>20.0f} {r['rss_peak_mb']:>12.0f} {r['tracemalloc_peak_mb']:>20.0f} {r['seconds']:>6.1f}")
+
+
+if __name__ == "__main__":
+    main()

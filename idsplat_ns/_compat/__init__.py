@@ -1,0 +1,12 @@
+"""Guards for two CPU-machine snags, each doing nothing where the real thing works.
+
+* torchvision from PyPI ships compiled ops linked against CUDA; with a CPU-only torch they fail to
+  load and ``import torchvision`` then dies registering a fake kernel for ``torchvision::nms``.
+  nerfstudio imports torchvision at start-up, so ``ns-train`` would not start. See
+  :mod:`idsplat_ns._compat.torchvision_ops`.
+* open3d's wheel needs ``libusb-1.0.so.0``, which minimal machines lack; the ``libusb-package``
+  wheel ships one. See :mod:`idsplat_ns._compat.libusb`.
+
+Both are applied by an import hook (:mod:`idsplat_ns._compat.startup`) that a ``.pth`` file
+installs at interpreter start, so they run before nerfstudio's first import of torchvision.
+"""

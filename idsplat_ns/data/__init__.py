@@ -1,0 +1,1 @@
+"""Dataset parsers and the scene representation shared by all of them."""

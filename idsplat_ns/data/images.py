@@ -1,0 +1,53 @@
+"""Decoding images and ground-truth masks of a :class:`CameraImage` at a chosen scale."""
+
+from __future__ import annotations
+
+import io
+from typing import Optional
+
+import numpy as np
+from PIL import Image, UnidentifiedImageError
+
+from idsplat_ns.data.camera import CameraImage
+from idsplat_ns.errors import IDSplatError
+
+
+def _open(image: CameraImage) -> Image.Image:
+    try:
+        if image.image_path is not None:
+            with Image.open(image.image_path) as im:
+                return im.convert("RGB")
+        if image.image_bytes is not None:
+            return Image.open(io.BytesIO(image.image_bytes)).convert("RGB")
+    except (UnidentifiedImageError, OSError) as err:
+        where = image.image_path or f"{image.camera} frame {image.frame_index}"
+        raise IDSplatError(f"{where}: unreadable image ({err.__class__.__name__}); re-download or regenerate it") from None
+    if image.image is not None:
+        return Image.fromarray(image.image)
+    raise IDSplatError(f"{image.camera} frame {image.frame_index}: the image has no path, bytes or pixels")
+
+
+def load_rgb(image: CameraImage, scale: float = 1.0) -> np.ndarray:
+    """The image as [H, W, 3] uint8, resized by ``scale`` to the size of ``intrinsics.scaled(scale)``."""
+    im = _open(image)
+    target = image.intrinsics.scaled(scale)
+    if im.size != (target.width, target.height):
+        im = im.resize((target.width, target.height), Image.BILINEAR if scale >= 1 else Image.BOX)
+    return np.array(im, dtype=np.uint8)  # a writable copy (torch.from_numpy warns on read-only arrays)
+
+
+def load_instance_mask(image: CameraImage, scale: float = 1.0) -> Optional[np.ndarray]:
+    """The ground-truth uint16 instance-ID map [H, W] at ``scale`` (nearest), or None if there is none."""
+    if image.instance_mask_path is None:
+        return None
+    try:
+        with Image.open(image.instance_mask_path) as im:
+            mask = np.asarray(im).astype(np.int64)
+    except (UnidentifiedImageError, OSError) as err:
+        raise IDSplatError(f"{image.instance_mask_path}: unreadable mask ({err.__class__.__name__}); regenerate it") from None
+    target = image.intrinsics.scaled(scale)
+    if mask.shape != (target.height, target.width):
+        rows = np.minimum((np.arange(target.height) + 0.5) * mask.shape[0] / target.height, mask.shape[0] - 1).astype(int)
+        cols = np.minimum((np.arange(target.width) + 0.5) * mask.shape[1] / target.width, mask.shape[1] - 1).astype(int)
+        mask = mask[rows][:, cols]
+    return mask

@@ -1,0 +1,132 @@
+"""Configuration of the built-in synthetic street: sensor rig, sequence length and the presets.
+
+Every field has a default; the presets (`tiny`, `small`, `bench`) change only sizes, so the three
+show the same kind of street. All lengths are metres, angles degrees, times seconds.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+from idsplat_ns.errors import IDSplatError
+
+CAMERA_NAMES: tuple[str, ...] = ("front_camera", "front_left_camera", "front_right_camera")
+"""PandaSet names of the three simulated cameras, in the order they are rendered."""
+
+
+@dataclass(frozen=True)
+class CameraRigConfig:
+    """Three pinhole, global-shutter cameras rigidly mounted on the ego vehicle."""
+
+    image_width: int = 320
+    """Image width in pixels."""
+    image_height: int = 192
+    """Image height in pixels."""
+    horizontal_fov_deg: float = 75.0
+    """Horizontal field of view of each camera; with yaws of +/-55 deg neighbours overlap by 20 deg."""
+    yaws_deg: tuple[float, float, float] = (0.0, 55.0, -55.0)
+    """Mounting yaw of front, front-left, front-right (positive turns left, about the ego's up axis)."""
+    pitch_deg: float = -4.0
+    """Mounting pitch (negative looks down) shared by the three cameras."""
+    time_offsets: tuple[float, float, float] = (0.004, 0.011, -0.007)
+    """Image time minus frame time, per camera (fixed trigger delays of the rig)."""
+    color_gains: tuple[tuple[float, float, float], ...] = (
+        (1.0, 1.0, 1.0),
+        (1.04, 1.0, 0.95),
+        (0.95, 0.98, 1.04),
+    )
+    """Per-camera RGB gain (exposure and white balance differ between real cameras)."""
+    supersample: int = 1
+    """Rays per pixel along each image axis (2 means 2x2 rays averaged): anti-aliasing."""
+    shadows: bool = True
+    """Cast sun shadows (one shadow ray per lit surface sample)."""
+    jpeg_quality: int = 93
+    """JPEG quality of the written images."""
+
+
+@dataclass(frozen=True)
+class LidarConfig:
+    """A spinning 64-beam lidar (Pandar64-like) on the ego roof."""
+
+    azimuth_steps: int = 1024
+    """Firings per rotation (columns of the range image); the real Pandar64 has 1800 at 10 Hz."""
+    elevation_min_deg: float = -25.0
+    """Lowest beam elevation."""
+    elevation_max_deg: float = 15.0
+    """Highest beam elevation."""
+    max_range: float = 100.0
+    """Returns beyond this range are dropped (no return)."""
+    range_noise_std: float = 0.02
+    """Standard deviation of the Gaussian range noise, metres."""
+    dropout_prob: float = 0.03
+    """Probability that a ray that hit a surface returns nothing anyway (random drop-out)."""
+    glass_dropout_prob: float = 0.35
+    """Drop-out probability on glass (windows), which reflects the beam away."""
+    mount_height: float = 1.9
+    """Height of the sensor above the ground."""
+
+
+@dataclass(frozen=True)
+class SyntheticConfig:
+    """One synthetic sequence: how long, how fast, which sensors and where on Earth."""
+
+    name: str = "small"
+    """Preset name; also names the sequence folder (`synth_<name>_<seed>`)."""
+    num_frames: int = 40
+    """Number of frames (lidar sweeps and camera triggers)."""
+    frame_rate: float = 10.0
+    """Frames per second (= lidar rotation rate)."""
+    ego_speed: float = 8.0
+    """Speed of the ego vehicle along the street, m/s."""
+    cameras: CameraRigConfig = field(default_factory=CameraRigConfig)
+    """The camera rig."""
+    lidar: LidarConfig = field(default_factory=LidarConfig)
+    """The spinning lidar."""
+    world_offset: tuple[float, float, float] = (452_130.0, 5_612_270.0, 31.5)
+    """World position of the street's local origin (UTM-like, exercises the parser's recentring)."""
+    world_yaw_deg: float = 21.0
+    """Rotation of the street about world z (so that the road is not axis aligned in world)."""
+    start_time: float = 1_557_540_000.0
+    """Unix time of frame 0."""
+
+    @property
+    def duration(self) -> float:
+        """Time from the first to the last frame, seconds."""
+        return (self.num_frames - 1) / self.frame_rate
+
+
+PRESETS: dict[str, SyntheticConfig] = {
+    # Tests: seconds to make on 2 cores; still 64 beams and three cameras.
+    "tiny": SyntheticConfig(
+        name="tiny",
+        num_frames=10,
+        cameras=CameraRigConfig(image_width=128, image_height=80, supersample=1),
+        lidar=LidarConfig(azimuth_steps=256),
+    ),
+    # The demo: trains on 2 CPU cores.
+    "small": SyntheticConfig(name="small"),
+    # Benchmarks: closer to real sensor sizes.
+    "bench": SyntheticConfig(
+        name="bench",
+        num_frames=60,
+        cameras=CameraRigConfig(image_width=640, image_height=384, supersample=2),
+        lidar=LidarConfig(azimuth_steps=1800),
+    ),
+}
+
+
+def get_preset(preset: str | SyntheticConfig) -> SyntheticConfig:
+    """The configuration for a preset name, or `preset` itself if it already is a configuration."""
+    if isinstance(preset, SyntheticConfig):
+        return preset
+    if preset not in PRESETS:
+        raise IDSplatError(
+            f"unknown synthetic preset {preset!r}: choose one of {', '.join(sorted(PRESETS))}"
+        )
+    return PRESETS[preset]
+
+
+def config_to_dict(config: SyntheticConfig) -> dict:
+    """The configuration as plain JSON-able data (written to `generator.json`)."""
+    return dataclasses.asdict(config)

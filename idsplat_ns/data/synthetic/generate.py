@@ -1,0 +1,260 @@
+"""Generate a synthetic sequence on disk: `generate_sequence(out_dir, preset, seed)`.
+
+Frames are independent (each has its own random stream derived from (seed, frame)), so they can
+be rendered by several processes and the result is the same byte for byte.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import json
+import multiprocessing
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from idsplat_ns.data.synthetic import writer
+from idsplat_ns.data.synthetic.camera_render import render_camera
+from idsplat_ns.data.synthetic.config import CAMERA_NAMES, SyntheticConfig, config_to_dict, get_preset
+from idsplat_ns.data.synthetic.lidar_sim import simulate_sweep
+from idsplat_ns.data.synthetic.raycast import RayCaster
+from idsplat_ns.data.synthetic.rig import cameras, lidar_pose
+from idsplat_ns.data.synthetic.world import World, build_world
+from idsplat_ns.errors import IDSplatError
+
+GENERATOR_NAME = "idsplat_ns.data.synthetic"
+GENERATOR_VERSION = 1
+"""Bump when the output for a given (config, seed) changes, so that caches are remade."""
+
+
+def sequence_name(config: SyntheticConfig, seed: int) -> str:
+    """Folder name of the sequence for (config, seed)."""
+    return f"synth_{config.name}_{seed}"
+
+
+def generator_record(config: SyntheticConfig, seed: int) -> dict:
+    """Contents of `idsplat_extras/generator.json`: what made the sequence and its conventions."""
+    return {
+        "generator": GENERATOR_NAME,
+        "version": GENERATOR_VERSION,
+        "preset": config.name,
+        "seed": seed,
+        "config": config_to_dict(config),
+        "conventions": {
+            "camera_pose": "camera-to-world, OpenCV axes (x right, y down, z forward)",
+            "lidar_pose": "lidar-to-world at the sweep time, axes x right, y forward, z up",
+            "lidar_sweep": "one rotation over [t - period/2, t + period/2), azimuth counter-clockwise from the "
+            "sensor's right, starting behind; per-point t",
+            "camera_time": "frame time + fixed per-camera offset, global shutter",
+            "pixel_centres": "pixel (i, j) is the ray through (i + 0.5, j + 0.5)",
+            "cuboid_time": "cuboids are at the lidar sweep time (lidar/timestamps.json)",
+        },
+    }
+
+
+def _frame_rng(seed: int, frame: int) -> np.random.Generator:
+    return np.random.default_rng(np.random.SeedSequence([seed, frame, 0x11DA]))
+
+
+def vehicle_cuboids(world: World, t: float) -> list[dict]:
+    """Devkit cuboid rows of the vehicles within lidar range of the ego at local time `t`."""
+    rows = []
+    ego_xy, _ = world.ego.pose(np.array([t]))
+    world_yaw = np.radians(world.config.world_yaw_deg)
+    for obj in world.vehicles:
+        xy, heading = obj.trajectory.pose(np.array([t]))
+        if np.linalg.norm(xy[0] - ego_xy[0]) > world.config.lidar.max_range:
+            continue
+        width, length, height = obj.dimensions
+        centre = world.points_to_world(np.array([[xy[0, 0], xy[0, 1], height / 2]]))[0]
+        # PandaSet yaw: 0 = length axis along world +y, counter-clockwise.
+        yaw = float(np.mod(heading[0] + world_yaw - np.pi / 2 + np.pi, 2 * np.pi) - np.pi)
+        rows.append(
+            {
+                "uuid": obj.uuid,
+                "label": obj.label,
+                "yaw": yaw,
+                "stationary": not obj.moving,
+                "camera_used": -1,
+                "position.x": centre[0],
+                "position.y": centre[1],
+                "position.z": centre[2],
+                "dimensions.x": width,
+                "dimensions.y": length,
+                "dimensions.z": height,
+                "attributes.object_motion": "Moving" if obj.moving else "Parked",
+                "cuboids.sibling_id": "-",
+                "cuboids.sensor_id": -1,
+                "attributes.rider_status": np.nan,
+                "attributes.pedestrian_behavior": np.nan,
+                "attributes.pedestrian_age": np.nan,
+            }
+        )
+    return rows
+
+
+# -- per-process state (a worker builds its own world once) ---------------------------------------
+_STATE: dict = {}
+
+
+def _init_worker(config: SyntheticConfig, seed: int, tmp: str) -> None:
+    world = build_world(config, seed)
+    _STATE.update(world=world, caster=RayCaster(world), cameras=cameras(config), tmp=Path(tmp), seed=seed)
+
+
+def _make_frame(k: int) -> dict:
+    """Render and write frame `k`; returns its poses and time stamps."""
+    world, caster, tmp, seed = _STATE["world"], _STATE["caster"], _STATE["tmp"], _STATE["seed"]
+    cfg = world.config
+    name = f"{k:02d}"
+    t = k / cfg.frame_rate  # local clock: 0 at frame 0
+    out: dict = {"cameras": {}}
+    for cam in _STATE["cameras"]:
+        t_img = t + cam.time_offset
+        image, instance, _ = render_camera(caster, cam, t_img, cfg.cameras.supersample, cfg.cameras.shadows)
+        writer.write_jpeg(tmp / "camera" / cam.name / f"{name}.jpg", image, cfg.cameras.jpeg_quality)
+        writer.write_png16(tmp / "idsplat_extras" / "instance_masks" / cam.name / f"{name}.png", instance)
+        rot, pos = cam.pose(world, t_img)
+        out["cameras"][cam.name] = (
+            writer.pose_dict(world.local_to_world_rotation @ rot, world.points_to_world(pos[None])[0]),
+            cfg.start_time + t_img,
+        )
+    sweep = simulate_sweep(caster, t, _frame_rng(seed, k))
+    df = writer.lidar_frame(world.points_to_world(sweep.points), sweep.intensity, cfg.start_time + sweep.times)
+    writer.write_pickle_gz(tmp / "lidar" / f"{name}.pkl.gz", df)
+    writer.write_npz(
+        tmp / "idsplat_extras" / "lidar_noreturn" / f"{name}.npz",
+        origins=world.points_to_world(sweep.miss_origins),
+        directions=world.directions_to_world(sweep.miss_directions),
+        t=cfg.start_time + sweep.miss_times,
+        d=np.zeros(len(sweep.miss_times), dtype=np.int64),
+    )
+    rot, pos = lidar_pose(world, np.array([t]))
+    out["lidar"] = writer.pose_dict(world.local_to_world_rotation @ rot[0], world.points_to_world(pos)[0])
+    writer.write_pickle_gz(
+        tmp / "annotations" / "cuboids" / f"{name}.pkl.gz", writer.cuboid_frame(vehicle_cuboids(world, t))
+    )
+    out["time"] = cfg.start_time + t
+    out["gps"] = _gps(world, t)
+    return out
+
+
+def _gps(world: World, t: float) -> dict:
+    """Approximate GPS record of the ego (lat/long from the world offset, velocity in world axes)."""
+    _, pos = world.ego_pose(np.array([t]))
+    p = world.points_to_world(pos)[0]
+    lat0, long0 = 37.7749, -122.4194  # where the local origin is put
+    d = p - world.local_to_world_offset
+    lat = lat0 + d[1] / 111_320.0
+    vel = world.directions_to_world(
+        np.array([[np.cos(world.ego.heading), np.sin(world.ego.heading), 0.0]]) * world.ego.speed
+    )[0]
+    return {
+        "lat": lat,
+        "long": long0 + d[0] / (111_320.0 * np.cos(np.radians(lat0))),
+        "height": float(p[2]),
+        "xvel": float(vel[0]),
+        "yvel": float(vel[1]),
+    }
+
+
+def _make_folders(tmp: Path) -> None:
+    for cam in CAMERA_NAMES:
+        (tmp / "camera" / cam).mkdir(parents=True)
+        (tmp / "idsplat_extras" / "instance_masks" / cam).mkdir(parents=True)
+    for sub in ("lidar", "annotations/cuboids", "meta", "idsplat_extras/lidar_noreturn"):
+        (tmp / sub).mkdir(parents=True, exist_ok=True)
+
+
+def generate_sequence(
+    out_dir: Path | str,
+    preset: str | SyntheticConfig = "small",
+    seed: int = 0,
+    *,
+    overwrite: bool = False,
+    workers: int | None = None,
+    progress: bool = True,
+) -> Path:
+    """Write the synthetic street for `preset` and `seed` under `out_dir`; returns the sequence folder.
+
+    The folder is `out_dir/synth_<preset>_<seed>` in the PandaSet layout plus `idsplat_extras/`.
+    It is written to a temporary sibling and renamed when complete. If it already exists and was
+    made by the same generator version, preset configuration and seed, it is returned as is;
+    otherwise `overwrite=True` is needed. `workers` > 1 renders frames in that many processes
+    (default: up to 2 for sequences of 20 frames or more, where it pays for the process start-up).
+    """
+    config = get_preset(preset)
+    if workers is None:
+        workers = min(2, os.cpu_count() or 1) if config.num_frames >= 20 else 1
+    out_dir = Path(out_dir)
+    writer.check_writable(out_dir)
+    final = out_dir / sequence_name(config, seed)
+    record = generator_record(config, seed)
+    record_path = final / "idsplat_extras" / "generator.json"
+    if final.exists() and not overwrite:
+        try:
+            same = json.loads(record_path.read_text()) == json.loads(json.dumps(record))
+        except (OSError, ValueError):
+            same = False
+        if same:
+            return final
+        raise IDSplatError(f"{final} exists and was not made with these settings; remove it or pass --overwrite")
+    tmp = out_dir / f".{final.name}.tmp-{os.getpid()}"
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    _make_folders(tmp)
+    try:
+        frames = _render_frames(config, seed, tmp, workers, progress)
+        _write_sequence_files(config, seed, tmp, frames, record)
+        writer.replace_folder_atomically(tmp, final)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp)
+    return final
+
+
+def _render_frames(config: SyntheticConfig, seed: int, tmp: Path, workers: int, progress: bool) -> list[dict]:
+    bar = tqdm(total=config.num_frames, desc=f"synthetic {config.name}", unit="frame", disable=not progress)
+    try:
+        if workers <= 1:
+            _init_worker(config, seed, str(tmp))
+            frames = []
+            for k in range(config.num_frames):
+                frames.append(_make_frame(k))
+                bar.update()
+            return frames
+        ctx = multiprocessing.get_context("spawn")  # safe under torch and threads
+        with cf.ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker,
+                                    initargs=(config, seed, str(tmp))) as pool:
+            frames = []
+            for frame in pool.map(_make_frame, range(config.num_frames)):
+                frames.append(frame)
+                bar.update()
+            return frames
+    finally:
+        bar.close()
+
+
+def _write_sequence_files(config: SyntheticConfig, seed: int, tmp: Path, frames: list[dict], record: dict) -> None:
+    """Per-sequence JSON files: intrinsics, poses, time stamps, GPS, instances, generator record."""
+    world = build_world(config, seed)
+    for cam in cameras(config):
+        folder = tmp / "camera" / cam.name
+        writer.write_json(folder / "intrinsics.json", {"fx": cam.fx, "fy": cam.fy, "cx": cam.cx, "cy": cam.cy})
+        writer.write_json(folder / "poses.json", [f["cameras"][cam.name][0] for f in frames])
+        writer.write_json(folder / "timestamps.json", [f["cameras"][cam.name][1] for f in frames])
+    writer.write_json(tmp / "lidar" / "poses.json", [f["lidar"] for f in frames])
+    writer.write_json(tmp / "lidar" / "timestamps.json", [f["time"] for f in frames])
+    writer.write_json(tmp / "meta" / "timestamps.json", [f["time"] for f in frames])
+    writer.write_json(tmp / "meta" / "gps.json", [f["gps"] for f in frames])
+    instances = {
+        str(v.instance_id): {"uuid": v.uuid, "label": v.label, "moving": v.moving} for v in world.vehicles
+    }
+    writer.write_json(tmp / "idsplat_extras" / "instances.json", instances)
+    writer.write_json(tmp / "idsplat_extras" / "generator.json", record)
+
+
+__all__ = ["generate_sequence", "sequence_name", "vehicle_cuboids", "GENERATOR_VERSION"]

@@ -1,0 +1,1 @@
+"""Evaluation: image, lidar and tracking metrics, plots."""

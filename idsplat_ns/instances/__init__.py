@@ -1,0 +1,1 @@
+"""Instance decomposition without annotations: masks, lifting to lidar, features, registration, smoothing."""

@@ -1,0 +1,1 @@
+"""Per-point features for registration correspondences: DINOv3 (ONNX), RGB, DAISY, FPFH."""

@@ -1,0 +1,61 @@
+"""Choosing the mask source."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+from idsplat_ns.errors import IDSplatError
+from idsplat_ns.instances.masks.base import MaskSource
+from idsplat_ns.instances.masks.gt_boxes import GtBoxMasksConfig
+from idsplat_ns.instances.masks.grounded_sam2_onnx import GroundedSam2Config
+from idsplat_ns.instances.masks.precomputed import PrecomputedMasksConfig
+
+MaskKind = Literal["auto", "grounded_sam2", "precomputed", "gt_boxes"]
+
+
+@dataclass(frozen=True)
+class MaskConfig:
+    """Where instance masks come from."""
+
+    kind: MaskKind = "auto"
+    """``grounded_sam2`` (the paper's; needs the ONNX files), ``precomputed`` (a mask folder),
+    ``gt_boxes`` (oracle: projected ground-truth boxes, for ablations only) or ``auto``:
+    Grounded-SAM-2 when its detector file is given, else precomputed when a mask folder is given."""
+    grounded_sam2: GroundedSam2Config = field(default_factory=GroundedSam2Config)
+    """Grounded-SAM-2 model files and thresholds."""
+    precomputed: PrecomputedMasksConfig = field(default_factory=PrecomputedMasksConfig)
+    """The precomputed mask folder."""
+    gt_boxes: GtBoxMasksConfig = field(default_factory=GtBoxMasksConfig)
+    """Oracle settings."""
+
+
+def resolve_mask_kind(config: MaskConfig) -> str:
+    """The source that will run (``auto`` resolved)."""
+    if config.kind != "auto":
+        return config.kind
+    if config.grounded_sam2.detector_path is not None:
+        return "grounded_sam2"
+    if config.precomputed.mask_dir is not None:
+        return "precomputed"
+    raise IDSplatError(
+        "no mask source: give the Grounded-SAM-2 ONNX files (--masks.grounded-sam2.detector-path and friends) "
+        "or a folder of precomputed masks (--masks.precomputed.mask-dir)"
+    )
+
+
+def make_mask_source(kind: str, config: MaskConfig) -> MaskSource:
+    """Build the source named ``kind`` (already resolved)."""
+    if kind == "grounded_sam2":
+        from idsplat_ns.instances.masks.grounded_sam2_onnx import GroundedSam2OnnxMasks
+
+        return GroundedSam2OnnxMasks(config.grounded_sam2)
+    if kind == "precomputed":
+        from idsplat_ns.instances.masks.precomputed import PrecomputedMaskSource
+
+        return PrecomputedMaskSource(config.precomputed)
+    if kind == "gt_boxes":
+        from idsplat_ns.instances.masks.gt_boxes import GtBoxMaskSource
+
+        return GtBoxMaskSource(config.gt_boxes)
+    raise IDSplatError(f"--masks.kind {kind!r} is unknown; use auto, grounded_sam2, precomputed or gt_boxes")

@@ -1,0 +1,227 @@
+"""The preprocessing runner: masks -> point painting -> features -> registration -> static
+conversion -> smoothing, each stage cached atomically by its inputs and settings, with a timing
+table by stage like the paper's Table 13. Used by ``idsplat-preprocess`` and the datamanager.
+"""
+
+from __future__ import annotations
+
+import importlib
+import time
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Callable, Optional
+
+import numpy as np
+
+from idsplat_ns.data.scene import Scene
+from idsplat_ns.errors import IDSplatError
+from idsplat_ns.instances.cache import atomic_path, hash_json, remove_stale_temporaries, scene_fingerprint
+from idsplat_ns.instances.features.base import PointFeatures
+from idsplat_ns.instances.features.config import FeatureConfig, make_feature_extractor, resolve_feature_kind
+from idsplat_ns.instances.lifting import LiftedInstances, LiftingConfig, lift_instances
+from idsplat_ns.instances.masks.base import InstanceMaskSet
+from idsplat_ns.instances.masks.config import MaskConfig, make_mask_source, resolve_mask_kind
+from idsplat_ns.instances.masks.perturb import MaskNoiseConfig, perturb_mask_set
+from idsplat_ns.instances.masks.precomputed import load_mask_set
+from idsplat_ns.instances.static_conversion import StaticConversionConfig, convert_static_instances
+from idsplat_ns.instances.trajectory_estimation import TrajectoryConfig, estimate_trajectories
+from idsplat_ns.instances.tracks import InstanceTracks
+
+SMOOTHING_MODULE = "idsplat_ns.instances.smoothing"
+
+
+@dataclass(frozen=True)
+class PreprocessConfig:
+    """Every setting of instance preprocessing (defaults: the paper's)."""
+
+    masks: MaskConfig = field(default_factory=MaskConfig)
+    """Mask source."""
+    mask_noise: Optional[MaskNoiseConfig] = None
+    """Corrupt the masks before lifting (robustness tests only; None in normal use)."""
+    lifting: LiftingConfig = field(default_factory=LiftingConfig)
+    """Mask-to-lidar lifting."""
+    features: FeatureConfig = field(default_factory=FeatureConfig)
+    """Point features for correspondences."""
+    trajectory: TrajectoryConfig = field(default_factory=TrajectoryConfig)
+    """Registration (or the centroid ablation)."""
+    static: StaticConversionConfig = field(default_factory=StaticConversionConfig)
+    """Static conversion of barely moving instances."""
+    smoothing: bool = True
+    """Run the trajectory-smoothing stage (when its module is available)."""
+
+
+@dataclass
+class StageTiming:
+    """Wall time of one stage."""
+
+    name: str
+    seconds: float
+    cached: bool
+    note: str = ""
+
+
+@dataclass
+class PreprocessResult:
+    """What a run produced."""
+
+    tracks: InstanceTracks
+    timings: list[StageTiming]
+    mask_source: str
+    feature_extractor: Optional[str]
+
+    @property
+    def total_seconds(self) -> float:
+        return sum(t.seconds for t in self.timings)
+
+    def timing_table(self) -> str:
+        """A text table like the paper's Table 13 (time per stage and share of the total)."""
+        total = max(self.total_seconds, 1e-9)
+        lines = [f"{'stage':<20}{'time [s]':>10}{'share':>9}  source", "-" * 56]
+        for t in self.timings:
+            src = "cache" if t.cached else ("skipped" if t.note.startswith("skipped") else "computed")
+            lines.append(f"{t.name:<20}{t.seconds:>10.2f}{100 * t.seconds / total:>8.1f}%  {src}{(' - ' + t.note) if t.note else ''}")
+        lines.append("-" * 56)
+        lines.append(f"{'total':<20}{self.total_seconds:>10.2f}")
+        return "\n".join(lines)
+
+
+def _cached_file(path: Path, compute: Callable[[], object], save: Callable[[object, Path], None],
+                 load: Callable[[Path], object]) -> tuple[object, bool]:
+    """Load ``path`` if present, else compute, save atomically and return (result, was_cached)."""
+    if path.is_file():
+        return load(path), True
+    result = compute()
+    with atomic_path(path) as tmp:
+        save(result, tmp)
+    return result, False
+
+
+def _smooth(tracks: InstanceTracks, smooth_trajectory) -> InstanceTracks:
+    """Replace each dynamic instance's poses by smoothed ones (valid within the measured span)."""
+    out = []
+    times = np.asarray(tracks.frame_times, np.float64)
+    for inst in tracks.instances:
+        sm = smooth_trajectory(times, inst.poses, inst.valid)
+        lo, hi = sm.span
+        out.append(replace(inst, poses=np.asarray(sm.poses), valid=(times >= lo) & (times <= hi), measured_valid=inst.valid))
+    return replace(tracks, instances=out, metadata={**tracks.metadata, "smoothed": True})
+
+
+def run_preprocessing(
+    scene: Scene,
+    config: PreprocessConfig,
+    cache_dir: Path,
+    output_path: Optional[Path] = None,
+    progress: bool = True,
+    verbose: bool = True,
+) -> PreprocessResult:
+    """Run every stage for ``scene`` with caches under ``cache_dir``; write the final tracks to
+    ``output_path`` (atomically) when given."""
+    if not scene.has_lidar:
+        raise IDSplatError(f"scene {scene.name} has no lidar; instance decomposition lifts masks to lidar points")
+    cache_dir = Path(cache_dir)
+    cache_dir.mkdir(parents=True, exist_ok=True)
+    stale = remove_stale_temporaries(cache_dir)
+    if stale and verbose:
+        print(f"note: removed {stale} unfinished cache entries left by an interrupted run")
+    timings: list[StageTiming] = []
+
+    # 1. Mask generation.
+    t0 = time.perf_counter()
+    scene_key = scene_fingerprint(scene)
+    mask_kind = resolve_mask_kind(config.masks)
+    source = make_mask_source(mask_kind, config.masks)
+    mask_key = hash_json({"scene": scene_key, "source": source.cache_key()})
+    cached = True
+    if source.writes_output:
+        mask_dir = cache_dir / f"masks-{mask_key}"
+        if mask_dir.is_dir():
+            masks = load_mask_set(mask_dir, source=source.name)
+        else:
+            cached = False
+            with atomic_path(mask_dir) as tmp:
+                source.generate(scene, tmp, progress)
+            masks = load_mask_set(mask_dir, source=source.name)
+    else:
+        masks = source.generate(scene, cache_dir, progress)
+    if config.mask_noise is not None:
+        mask_key = hash_json({"masks": mask_key, "noise": asdict(config.mask_noise)})
+        noisy_dir = cache_dir / f"masks-noisy-{mask_key}"
+        if not noisy_dir.is_dir():
+            cached = False
+            with atomic_path(noisy_dir) as tmp:
+                perturb_mask_set(masks, scene, tmp, config.mask_noise)
+        masks = InstanceMaskSet(noisy_dir, load_mask_set(noisy_dir).labels, f"{masks.source}+noise")
+    timings.append(StageTiming("mask generation", time.perf_counter() - t0, cached, masks.source))
+
+    # 2. Point painting (lifting masks to lidar).
+    t0 = time.perf_counter()
+    lift_key = hash_json({"masks": mask_key, "lifting": asdict(config.lifting)})
+    lifted, cached = _cached_file(
+        cache_dir / f"lifting-{lift_key}.npz",
+        lambda: lift_instances(scene, masks, config.lifting, progress),
+        lambda r, p: r.save(p), LiftedInstances.load)
+    n_obs = sum(len(v) for v in lifted.observations.values())
+    timings.append(StageTiming("point painting", time.perf_counter() - t0, cached, f"{len(lifted.observations)} instances, {n_obs} observations"))
+
+    # 3. Point features (not needed by the centroid ablation).
+    features: Optional[PointFeatures] = None
+    feat_key = hash_json({"lifting": lift_key, "features": None})
+    extractor_name = None
+    if config.trajectory.method == "registration":
+        t0 = time.perf_counter()
+        extractor_name = resolve_feature_kind(config.features, scene)
+        extractor = make_feature_extractor(extractor_name, config.features)
+        feat_key = hash_json({"lifting": lift_key, "features": extractor.cache_key()})
+        features, cached = _cached_file(
+            cache_dir / f"features-{feat_key}.npz",
+            lambda: extractor.extract(scene, lifted, progress),
+            lambda r, p: r.save(p), PointFeatures.load)
+        timings.append(StageTiming("features", time.perf_counter() - t0, cached, extractor_name))
+
+    # 4. Registration.
+    t0 = time.perf_counter()
+    reg_key = hash_json({"features": feat_key, "trajectory": asdict(config.trajectory)})
+    tracks, cached = _cached_file(
+        cache_dir / f"registration-{reg_key}.npz",
+        lambda: estimate_trajectories(scene, lifted, features, config.trajectory, progress),
+        lambda r, p: r.save(p), InstanceTracks.load)
+    tracks.metadata.update({"mask_source": masks.source})
+    timings.append(StageTiming("registration", time.perf_counter() - t0, cached, config.trajectory.method))
+
+    # 5. Static conversion.
+    t0 = time.perf_counter()
+    tracks = convert_static_instances(tracks, config.static)
+    timings.append(StageTiming("static conversion", time.perf_counter() - t0, False,
+                               f"{len(tracks.instances)} dynamic, {len(tracks.static_instances)} static"))
+
+    # 6. Smoothing: the hook for idsplat_ns.instances.smoothing.smooth_trajectory, when importable.
+    t0 = time.perf_counter()
+    if not config.smoothing:
+        timings.append(StageTiming("smoothing", 0.0, False, "skipped (disabled)"))
+    else:
+        try:
+            smooth_trajectory = importlib.import_module(SMOOTHING_MODULE).smooth_trajectory
+        except (ImportError, AttributeError) as err:
+            smooth_trajectory = None
+            if verbose:
+                print(f"note: trajectory smoothing unavailable ({err}); the stage is skipped and poses stay unsmoothed")
+        if smooth_trajectory is None:
+            timings.append(StageTiming("smoothing", 0.0, False, "skipped (module unavailable)"))
+        else:
+            smooth_key = hash_json({"registration": reg_key, "static": asdict(config.static), "smoothing": "default"})
+            tracks, cached = _cached_file(
+                cache_dir / f"smoothing-{smooth_key}.npz",
+                lambda: _smooth(tracks, smooth_trajectory),
+                lambda r, p: r.save(p), InstanceTracks.load)
+            timings.append(StageTiming("smoothing", time.perf_counter() - t0, cached))
+
+    tracks.metadata.update({"mask_source": masks.source, "features": extractor_name,
+                            "trajectory_method": config.trajectory.method})
+    if output_path is not None:
+        with atomic_path(Path(output_path)) as tmp:
+            tracks.save(tmp)
+    result = PreprocessResult(tracks, timings, masks.source, extractor_name)
+    if verbose:
+        print(result.timing_table())
+    return result

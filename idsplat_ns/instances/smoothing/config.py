@@ -1,0 +1,51 @@
+"""Settings of the coordinated-turn (CT) trajectory smoother; defaults are the paper's (supplementary,
+"Trajectory smoothing")."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class SmoothingConfig:
+    """Noise levels, robust loss and iteration counts of the CT smoother."""
+
+    measurement_rot_sigma: float = 0.1
+    """Std of the pose measurement factors, rotation part [rad] (each axis)."""
+    measurement_trans_sigma: float = 0.2
+    """Std of the pose measurement factors, translation part [m] (each axis)."""
+    huber_threshold: float = 1.0
+    """Huber threshold (whitened units) of the measurement factors."""
+    motion_rot_sigma: float = 0.1
+    """Std of the CT motion factor between successive states, rotation part [rad]."""
+    motion_trans_sigma: float = 0.2
+    """Std of the CT motion factor between successive states, translation part [m]."""
+    speed_walk_rate: float = 0.5
+    """Random walk on speed: std over a step of dt seconds is sqrt(speed_walk_rate * dt) [m/s]."""
+    curvature_walk_rate: float = 1e-5
+    """Random walk on curvature: std over a step is sqrt(curvature_walk_rate * dt) [1/m]."""
+    roll_pitch_sigma: float = 0.4
+    """Std of the roll and pitch prior of each pose in the motion frame (after the shared rotation)."""
+    curvature_sigma: float = 0.01
+    """Std of the zero-mean curvature prior applied at every step [1/m]."""
+    outlier_threshold: float = 1.345
+    """Measurements whose whitened error (after the first pass) exceeds this are dropped."""
+    outlier_scale_adaptive: bool = True
+    """Raise the threshold to ``adaptive_outlier_factor`` x the median whitened error when that is
+    larger, so that registration noise beyond the configured sigmas does not flag most measurements
+    as outliers. False applies ``outlier_threshold`` alone, as the paper states."""
+    adaptive_outlier_factor: float = 2.5
+    """Multiple of the median whitened error used by ``outlier_scale_adaptive``."""
+    first_pass_iterations: int = 1
+    """Levenberg-Marquardt iterations of the first (outlier-detection) pass."""
+    final_iterations: int = 10
+    """Maximum Levenberg-Marquardt iterations of the final pass, without the outliers."""
+    min_noise_dt: float = 1e-3
+    """Time steps shorter than this [s] use this value in the random-walk sigmas, so that
+    nearly coincident timestamps do not make the random walks infinitely stiff."""
+    weak_speed_sigma: float = 100.0
+    """Std [m/s] of a weak prior on the first speed; it only fixes the speed when no two
+    measurements exist (a single measurement). Negligible otherwise."""
+    weak_shared_rotation_sigma: float = 3.0
+    """Std [rad] of a weak prior that keeps the shared rotation at its initial value when the
+    motion does not determine it (a stopped object). Negligible otherwise."""

@@ -1,0 +1,257 @@
+"""Iterative robust coordinated-turn smoothing of one instance trajectory (GTSAM, Levenberg-Marquardt).
+
+Pass 1 runs ``first_pass_iterations`` LM iterations with every measurement (Huber loss) and flags
+the measurements whose whitened error exceeds the outlier threshold; pass 2 re-optimises from
+pass 1's estimate without them for at most ``final_iterations`` iterations.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+
+from idsplat_ns.errors import IDSplatError
+from idsplat_ns.instances.smoothing import factors as F
+from idsplat_ns.instances.smoothing.config import SmoothingConfig
+from idsplat_ns.instances.smoothing.ct_model import ct_delta_pose, rot_z, shared_rotation_pose
+
+# Half-width (in measurements) of the running median used for the initial guess.
+_INIT_MEDIAN_HALF_WIDTH = 2
+# |curvature| bound of the initial guess [1/m] (about a 2 m turning radius).
+_INIT_MAX_CURVATURE = 0.5
+
+
+@dataclass
+class SmoothedTrajectory:
+    """Result of :func:`smooth_trajectory`. Poses map the instance's canonical frame to world."""
+
+    times: np.ndarray  # [T] seconds, strictly increasing
+    poses: np.ndarray  # [T, 4, 4] smoothed poses at every step
+    speeds: np.ndarray  # [T] signed speed along the motion frame's x [m/s]
+    curvatures: np.ndarray  # [T] curvature [1/m] (positive: turning left)
+    shared_rotation: np.ndarray  # [3, 3] canonical frame -> motion frame (x forward) rotation
+    inliers: np.ndarray  # [T] bool: measurement existed and was kept in the final pass
+    whitened_errors: np.ndarray  # [T] first-pass whitened measurement errors (NaN where none)
+    outlier_threshold: float  # the whitened-error threshold that was applied
+    span: tuple[float, float]  # first and last time with a measurement: the instance exists in between
+
+    def pose_at(self, time: float) -> np.ndarray | None:
+        """Pose [4, 4] at ``time`` [s], or None outside ``span`` (the instance is absent there).
+
+        CT propagation from the nearest earlier state with that state's speed and curvature; the
+        small mismatch between the prediction and the next state (the motion factor is soft) is
+        spread linearly over the interval on SE(3), so the result is continuous and equals the
+        states at their own times.
+        """
+        t0, t1 = self.span
+        if math.isnan(time) or not (t0 <= time <= t1):
+            return None
+        k = int(np.searchsorted(self.times, time, side="right")) - 1
+        k = min(max(k, 0), len(self.times) - 1)
+        if k == len(self.times) - 1 or time == self.times[k]:
+            return self.poses[k].copy()
+        dt_full = float(self.times[k + 1] - self.times[k])
+        dt = float(time - self.times[k])
+        S = shared_rotation_pose(self.shared_rotation)
+        M_k = self.poses[k] @ S
+        M_next = self.poses[k + 1] @ S
+        predicted_next = M_k @ ct_delta_pose(self.speeds[k], self.curvatures[k], dt_full)
+        mismatch = gtsam.Pose3.Logmap(gtsam.Pose3(np.linalg.inv(predicted_next) @ M_next))
+        M_t = M_k @ ct_delta_pose(self.speeds[k], self.curvatures[k], dt)
+        M_t = M_t @ gtsam.Pose3.Expmap((dt / dt_full) * mismatch).matrix()
+        return M_t @ S.T  # S is a rotation: its inverse is its transpose
+
+    def poses_at(self, query_times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # query_times: [N]
+        """Poses [N, 4, 4] at many times and a mask [N] of those inside the span (others identity)."""
+        query_times = np.asarray(query_times, dtype=np.float64)
+        poses = np.tile(np.eye(4), (len(query_times), 1, 1))
+        present = np.zeros(len(query_times), dtype=bool)
+        for n, t in enumerate(query_times):
+            pose = self.pose_at(float(t))
+            if pose is not None:
+                poses[n] = pose
+                present[n] = True
+        return poses, present
+
+
+def _validate(times: np.ndarray, poses: np.ndarray, valid: np.ndarray) -> None:
+    if times.ndim != 1 or len(times) == 0:
+        raise IDSplatError("smooth_trajectory: `times` must be a non-empty 1-D array of seconds")
+    if poses.shape != (len(times), 4, 4):
+        raise IDSplatError(f"smooth_trajectory: `poses` must have shape ({len(times)}, 4, 4), got {poses.shape}")
+    if valid.shape != times.shape:
+        raise IDSplatError(f"smooth_trajectory: `valid` must have shape {times.shape}, got {valid.shape}")
+    if not np.all(np.isfinite(times)) or np.any(np.diff(times) <= 0.0):
+        raise IDSplatError("smooth_trajectory: `times` must be finite and strictly increasing; merge duplicate timestamps first")
+    if not valid.any():
+        raise IDSplatError("smooth_trajectory: no valid measurement; an instance needs at least one pose")
+    if not np.all(np.isfinite(poses[valid])):
+        raise IDSplatError("smooth_trajectory: a valid pose has NaN/inf entries; mark it invalid")
+
+
+def _running_median(values: np.ndarray, half_width: int) -> np.ndarray:  # values: [M] or [M, D]
+    out = np.empty_like(values)
+    for i in range(len(values)):
+        lo, hi = max(0, i - half_width), min(len(values), i + half_width + 1)
+        out[i] = np.median(values[lo:hi], axis=0)
+    return out
+
+
+def _yaw(rotation: np.ndarray) -> float:  # rotation: [3, 3]
+    return math.atan2(rotation[1, 0], rotation[0, 0])
+
+
+@dataclass
+class _InitialGuess:
+    poses: np.ndarray  # [T, 4, 4]
+    speeds: np.ndarray  # [T]
+    curvatures: np.ndarray  # [T]
+    shared: np.ndarray  # [3, 3]
+
+
+def _initial_guess(times: np.ndarray, poses: np.ndarray, valid: np.ndarray) -> _InitialGuess:
+    """Robust start: running medians of measured positions and yaws, interpolated over gaps; the
+    shared rotation from the direction of travel; speeds and curvatures by finite differences."""
+    idx = np.flatnonzero(valid)
+    t_meas = times[idx]
+    pos = _running_median(poses[idx, :3, 3], _INIT_MEDIAN_HALF_WIDTH)
+    yaws = np.unwrap(np.array([_yaw(poses[i, :3, :3]) for i in idx]))
+    yaws = _running_median(yaws, _INIT_MEDIAN_HALF_WIDTH)
+    T = len(times)
+    positions = np.stack([np.interp(times, t_meas, pos[:, a]) for a in range(3)], axis=1)
+    yaw = np.interp(times, t_meas, yaws)
+    init_poses = np.tile(np.eye(4), (T, 1, 1))
+    for t in range(T):
+        init_poses[t, :3, :3] = rot_z(yaw[t])
+        init_poses[t, :3, 3] = positions[t]
+
+    shared_yaw = 0.0
+    speeds = np.zeros(T)
+    curvatures = np.zeros(T)
+    if T >= 2:
+        disp = np.diff(positions, axis=0)  # [T-1, 3]
+        dts = np.diff(times)
+        step_len = np.linalg.norm(disp[:, :2], axis=1)
+        if step_len.sum() > 1e-6:
+            # Direction of travel in world minus the object's yaw: the shared yaw, averaged on the circle.
+            rel = np.arctan2(disp[:, 1], disp[:, 0]) - yaw[:-1]
+            shared_yaw = math.atan2(float(np.sum(step_len * np.sin(rel))), float(np.sum(step_len * np.cos(rel))))
+        heading = yaw[:-1] + shared_yaw
+        fwd = disp[:, 0] * np.cos(heading) + disp[:, 1] * np.sin(heading)
+        v = fwd / dts
+        speeds[:-1] = v
+        speeds[-1] = v[-1]
+        dyaw = np.diff(yaw)
+        arc = v * dts
+        moving = np.abs(arc) > 0.05
+        kappa = np.zeros(T - 1)
+        kappa[moving] = dyaw[moving] / arc[moving]
+        curvatures[:-1] = np.clip(kappa, -_INIT_MAX_CURVATURE, _INIT_MAX_CURVATURE)
+        curvatures[-1] = curvatures[-2]
+    return _InitialGuess(init_poses, speeds, curvatures, rot_z(shared_yaw))
+
+
+def _build_graph(
+    times: np.ndarray, measured: np.ndarray, use: np.ndarray, init: _InitialGuess, config: SmoothingConfig
+) -> gtsam.NonlinearFactorGraph:
+    graph = gtsam.NonlinearFactorGraph()
+    for t in np.flatnonzero(use):
+        graph.add(F.measurement_factor(int(t), measured[t], config))
+    for t in range(len(times)):
+        graph.add(F.tilt_factor(t, config))
+        graph.add(F.curvature_prior_factor(t, config))
+    for t in range(len(times) - 1):
+        dt = float(times[t + 1] - times[t])
+        graph.add(F.motion_factor(t, dt, config))
+        graph.add(F.speed_walk_factor(t, dt, config))
+        graph.add(F.curvature_walk_factor(t, dt, config))
+    graph.add(F.weak_speed_prior_factor(float(init.speeds[0]), config))
+    graph.add(F.weak_shared_rotation_prior_factor(init.shared, config))
+    return graph
+
+
+def _values_from(init: _InitialGuess) -> gtsam.Values:
+    values = gtsam.Values()
+    for t in range(len(init.speeds)):
+        values.insert(F.pose_key(t), gtsam.Pose3(init.poses[t]))
+        values.insert(F.speed_key(t), float(init.speeds[t]))
+        values.insert(F.curvature_key(t), float(init.curvatures[t]))
+    values.insert(F.SHARED_KEY, gtsam.Rot3(init.shared))
+    return values
+
+
+def _optimize(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, iterations: int) -> gtsam.Values:
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(iterations)
+    return gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+
+
+def _outlier_threshold(errors: np.ndarray, config: SmoothingConfig) -> float:  # errors: [M]
+    """The paper's threshold, widened to the sequence's own noise level when that is larger."""
+    if not config.outlier_scale_adaptive:
+        return config.outlier_threshold
+    return max(config.outlier_threshold, config.adaptive_outlier_factor * float(np.median(errors)))
+
+
+def smooth_trajectory(
+    times: np.ndarray,  # [T] seconds, strictly increasing
+    poses: np.ndarray,  # [T, 4, 4] measured poses (canonical -> world); rows where ~valid are ignored
+    valid: np.ndarray,  # [T] bool, which measurements exist
+    config: SmoothingConfig | None = None,
+) -> SmoothedTrajectory:
+    """Robust coordinated-turn smoothing of one instance's measured poses.
+
+    Returns smoothed poses at every step (also where measurements are missing, extrapolated by the
+    motion model before the first and after the last measurement), speeds, curvatures, the shared
+    rotation, the mask of measurements kept as inliers, and ``pose_at`` for any time in the span
+    of the measurements. Raises :class:`IDSplatError` on malformed input.
+    """
+    config = config or SmoothingConfig()
+    times = np.asarray(times, dtype=np.float64)
+    poses = np.asarray(poses, dtype=np.float64)
+    valid = np.asarray(valid, dtype=bool)
+    _validate(times, poses, valid)
+
+    # Recentre (huge map coordinates): the factors see positions relative to the first valid one.
+    origin = poses[np.flatnonzero(valid)[0], :3, 3].copy()
+    measured = poses.copy()
+    measured[:, :3, 3] -= origin
+    measured[~valid] = np.eye(4)
+    for t in np.flatnonzero(valid):  # re-orthonormalise: float noise in the inputs breaks Rot3
+        u, _, vt = np.linalg.svd(measured[t, :3, :3])
+        measured[t, :3, :3] = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
+
+    init = _initial_guess(times, measured, valid)
+    values = _values_from(init)
+    first = _optimize(_build_graph(times, measured, valid, init, config), values, config.first_pass_iterations)
+
+    errors = np.full(len(times), np.nan)
+    for t in np.flatnonzero(valid):
+        errors[t] = F.whitened_measurement_error(measured[t], first.atPose3(F.pose_key(int(t))), config)
+    threshold = _outlier_threshold(errors[valid], config)
+    inliers = valid & (errors <= threshold)
+    if not inliers.any():
+        # Everything looks wrong: keep the measurement that agrees best rather than none.
+        inliers[int(np.nanargmin(errors))] = True
+
+    final = _optimize(_build_graph(times, measured, inliers, init, config), first, config.final_iterations)
+
+    T = len(times)
+    out_poses = np.empty((T, 4, 4))
+    for t in range(T):
+        out_poses[t] = final.atPose3(F.pose_key(t)).matrix()
+    out_poses[:, :3, 3] += origin
+    return SmoothedTrajectory(
+        times=times.copy(),
+        poses=out_poses,
+        speeds=np.array([final.atDouble(F.speed_key(t)) for t in range(T)]),
+        curvatures=np.array([final.atDouble(F.curvature_key(t)) for t in range(T)]),
+        shared_rotation=final.atRot3(F.SHARED_KEY).matrix(),
+        inliers=inliers,
+        whitened_errors=errors,
+        outlier_threshold=threshold,
+        span=(float(times[valid][0]), float(times[valid][-1])),
+    )

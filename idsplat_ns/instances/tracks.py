@@ -1,0 +1,137 @@
+"""The result of instance decomposition: per instance, a class, canonical points and per-frame poses.
+
+Conventions (../shared/DESIGN.md): instance IDs start at 1 (0 is the static background); the pose
+``poses[k]`` maps the instance's canonical frame to the world at ``frame_times[k]``.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+
+from idsplat_ns.errors import IDSplatError
+
+
+@dataclass
+class InstanceTrack:
+    """One rigid instance over the sequence."""
+
+    instance_id: int
+    """ID >= 1, unique within the sequence."""
+    label: str
+    """Class name from the mask source (e.g. ``car``)."""
+    canonical_points: np.ndarray
+    """[N, 3] float64 lidar points in the canonical frame (all successfully registered times)."""
+    canonical_colors: Optional[np.ndarray]
+    """[N, 3] uint8 RGB of those points where images exist, else None."""
+    poses: np.ndarray
+    """[F, 4, 4] canonical-to-world per scene frame. Where ``valid`` is false the pose of the nearest
+    valid frame is repeated, so that consumers that ignore ``valid`` still get a finite pose."""
+    valid: np.ndarray
+    """[F] bool: a pose was estimated (registration succeeded) at that frame."""
+    point_counts: np.ndarray
+    """[F] int lidar points of the instance at each frame (0 where not seen)."""
+    fitness: np.ndarray
+    """[F] float registration fitness at each frame (1 at the canonical frame, 0 where not registered)."""
+    canonical_frame: int
+    """Index of the frame with the most points, which defines the canonical frame."""
+    measured_valid: Optional[np.ndarray] = None
+    """[F] bool frames with a registration measurement, kept once smoothing has replaced ``poses``
+    and ``valid`` (None before smoothing, when it equals ``valid``)."""
+
+    @property
+    def num_valid(self) -> int:
+        return int(self.valid.sum())
+
+    def displacement(self) -> float:
+        """Largest distance (metres) between two valid positions of the canonical origin."""
+        t = self.poses[self.valid, :3, 3]
+        if len(t) < 2:
+            return 0.0
+        return float(np.max(np.linalg.norm(t[:, None] - t[None], axis=-1)))
+
+
+@dataclass
+class InstanceTracks:
+    """All instances of one sequence, plus those converted to static background."""
+
+    frame_indices: np.ndarray
+    """[F] dataset frame indices (as in ``Scene.frame_indices``)."""
+    frame_times: np.ndarray
+    """[F] float64 seconds since the sequence start."""
+    instances: list[InstanceTrack]
+    """Dynamic instances (the model gives each an ID and a trajectory)."""
+    static_instances: list[InstanceTrack] = field(default_factory=list)
+    """Instances whose displacement was below the static threshold (kept for inspection; their
+    points stay in the background)."""
+    metadata: dict = field(default_factory=dict)
+    """Which mask source and feature extractor ran, config hashes, smoothing status."""
+
+    def instance(self, instance_id: int) -> InstanceTrack:
+        for inst in self.instances + self.static_instances:
+            if inst.instance_id == instance_id:
+                return inst
+        raise KeyError(instance_id)
+
+    def save(self, path: Path) -> None:
+        """Write to ``path`` (a ``.npz``); the caller handles atomicity (see ``cache.atomic_path``)."""
+        arrays: dict[str, np.ndarray] = {"frame_indices": self.frame_indices, "frame_times": self.frame_times}
+        index = []
+        for group, insts in (("dynamic", self.instances), ("static", self.static_instances)):
+            for inst in insts:
+                key = f"i{inst.instance_id}"
+                index.append({"id": inst.instance_id, "label": inst.label, "group": group,
+                              "canonical_frame": inst.canonical_frame,
+                              "has_colors": inst.canonical_colors is not None})
+                arrays[f"{key}_points"] = inst.canonical_points
+                arrays[f"{key}_poses"] = inst.poses
+                arrays[f"{key}_valid"] = inst.valid
+                arrays[f"{key}_counts"] = inst.point_counts
+                arrays[f"{key}_fitness"] = inst.fitness
+                if inst.canonical_colors is not None:
+                    arrays[f"{key}_colors"] = inst.canonical_colors
+                if inst.measured_valid is not None:
+                    arrays[f"{key}_measured_valid"] = inst.measured_valid
+        arrays["index_json"] = np.frombuffer(json.dumps({"instances": index, "metadata": self.metadata}).encode(), np.uint8)
+        with open(path, "wb") as f:
+            np.savez_compressed(f, **arrays)
+
+    @classmethod
+    def load(cls, path: Path) -> "InstanceTracks":
+        """Read a file written by :meth:`save`."""
+        path = Path(path)
+        if not path.is_file():
+            raise IDSplatError(f"{path}: instance tracks file not found; run idsplat-preprocess first")
+        with np.load(path) as data:
+            meta = json.loads(bytes(data["index_json"]).decode())
+            out = cls(data["frame_indices"], data["frame_times"], [], [], meta["metadata"])
+            for entry in meta["instances"]:
+                key = f"i{entry['id']}"
+                inst = InstanceTrack(
+                    instance_id=entry["id"], label=entry["label"],
+                    canonical_points=data[f"{key}_points"],
+                    canonical_colors=data[f"{key}_colors"] if entry["has_colors"] else None,
+                    poses=data[f"{key}_poses"], valid=data[f"{key}_valid"],
+                    point_counts=data[f"{key}_counts"], fitness=data[f"{key}_fitness"],
+                    canonical_frame=entry["canonical_frame"],
+                    measured_valid=data[f"{key}_measured_valid"] if f"{key}_measured_valid" in data.files else None,
+                )
+                (out.instances if entry["group"] == "dynamic" else out.static_instances).append(inst)
+        return out
+
+
+def fill_invalid_poses(poses: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Copy of poses [F, 4, 4] where each invalid frame takes the pose of the nearest valid frame
+    (identity when no frame is valid)."""
+    out = np.array(poses, dtype=np.float64, copy=True)
+    good = np.nonzero(valid)[0]
+    if len(good) == 0:
+        out[:] = np.eye(4)
+        return out
+    for k in np.nonzero(~np.asarray(valid))[0]:
+        out[k] = out[good[np.argmin(np.abs(good - k))]]
+    return out

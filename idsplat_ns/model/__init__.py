@@ -1,0 +1,1 @@
+"""Model maths that does not need nerfstudio: Gaussians, decoders, losses."""

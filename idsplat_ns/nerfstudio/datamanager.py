@@ -1,0 +1,45 @@
+"""Full-image datamanager over a Scene: images per camera, the scene (with its lidar sweeps) for
+the model's initialisation, dynamic masks in evaluation batches."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal, Optional, Tuple, Type
+
+import torch
+from nerfstudio.data.datamanagers.full_images_datamanager import FullImageDatamanager, FullImageDatamanagerConfig
+
+from idsplat_ns.nerfstudio.dataparser import IDSplatDataParserConfig, PandaSetDataParserConfig
+from idsplat_ns.nerfstudio.dataset import IDSplatDataset
+
+
+@dataclass
+class IDSplatDataManagerConfig(FullImageDatamanagerConfig):
+    """Datamanager of the IDSplat method."""
+
+    _target: Type = field(default_factory=lambda: IDSplatDataManager)
+    dataparser: IDSplatDataParserConfig = field(default_factory=PandaSetDataParserConfig)
+    """Which dataset to read (PandaSet layout by default, the built-in street without --data)."""
+    cache_images: Literal["cpu", "gpu"] = "cpu"
+    """Keep decoded images in CPU memory (moved to the device per step)."""
+    cache_images_type: Literal["uint8", "float32"] = "uint8"
+    """Cache images as uint8 (4x less memory; converted per step)."""
+    eval_image_indices: Optional[Tuple[int, ...]] = None
+    """Evaluate on every held-out image."""
+
+
+class IDSplatDataManager(FullImageDatamanager[IDSplatDataset]):
+    """nerfstudio's full-image datamanager with the IDSplat dataset."""
+
+    config: IDSplatDataManagerConfig
+
+    @property
+    def scene(self):
+        return self.train_dataparser_outputs.metadata["scene"]
+
+    def _load_images(self, split, cache_images_device):
+        # nerfstudio pins CPU-cached images, which needs an accelerator; when training on the CPU,
+        # its "gpu" mode (cache on the training device, i.e. the CPU here) does the right thing.
+        if torch.device(self.device).type == "cpu":
+            cache_images_device = "gpu"
+        return super()._load_images(split, cache_images_device)

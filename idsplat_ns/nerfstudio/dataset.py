@@ -1,0 +1,35 @@
+"""nerfstudio dataset over a Scene's images: loads pixels through the project's loader and adds
+the ground-truth dynamic mask (evaluation only) to each batch."""
+
+from __future__ import annotations
+
+from typing import Dict
+
+import numpy as np
+import torch
+from nerfstudio.data.datasets.base_dataset import InputDataset
+
+from idsplat_ns.data.dynamic_masks import dynamic_mask
+from idsplat_ns.data.images import load_rgb
+
+
+class IDSplatDataset(InputDataset):
+    """Images of one split of a Scene, at the dataparser's scale."""
+
+    exclude_batch_keys_from_device = InputDataset.exclude_batch_keys_from_device + ["dynamic_mask"]
+
+    def __init__(self, dataparser_outputs, scale_factor: float = 1.0):
+        super().__init__(dataparser_outputs, scale_factor)
+        self.scene = self.metadata["scene"]
+        self.split_images = self.metadata["split_images"]
+        self.image_scale = float(self.metadata["image_scale"]) * scale_factor
+
+    def get_numpy_image(self, image_idx: int) -> np.ndarray:
+        return load_rgb(self.split_images[image_idx], self.image_scale)
+
+    def get_metadata(self, data: Dict) -> Dict:
+        if self.metadata.get("split") == "train":
+            return {}
+        image = self.split_images[data["image_idx"]]
+        mask = dynamic_mask(self.scene, image, self.image_scale)
+        return {"dynamic_mask": torch.from_numpy(mask)[..., None]}

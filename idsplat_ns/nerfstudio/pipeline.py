@@ -1,0 +1,70 @@
+"""IDSplat pipeline: the vanilla pipeline with an evaluation average that tolerates metrics only
+some images have (DPSNR needs moving objects in view) and says what it could not compute."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from time import time
+from typing import Optional, Type
+
+import numpy as np
+import torch
+from nerfstudio.pipelines.base_pipeline import VanillaPipeline, VanillaPipelineConfig
+from PIL import Image
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+CONSOLE = Console()
+LPIPS_NOTE = (
+    "LPIPS not computed: no backbone weights given (nothing is downloaded); pass "
+    "--pipeline.model.lpips-backbone <torchvision alexnet or vgg16 .pth file>"
+)
+
+
+@dataclass
+class IDSplatPipelineConfig(VanillaPipelineConfig):
+    """Pipeline of the IDSplat method."""
+
+    _target: Type = field(default_factory=lambda: IDSplatPipeline)
+
+
+class IDSplatPipeline(VanillaPipeline):
+    """Vanilla pipeline whose image-metric average handles per-image optional metrics."""
+
+    def get_average_image_metrics(self, data_loader, image_prefix: str, step: Optional[int] = None,
+                                  output_path: Optional[Path] = None, get_std: bool = False):
+        self.eval()
+        per_image = []
+        if output_path is not None:
+            output_path.mkdir(exist_ok=True, parents=True)
+        with Progress(TextColumn("[progress.description]{task.description}"), BarColumn(), TimeElapsedColumn(),
+                      MofNCompleteColumn(), transient=True) as progress:
+            task = progress.add_task("[green]Evaluating held-out images...", total=len(data_loader))
+            for idx, (camera, batch) in enumerate(data_loader):
+                start = time()
+                outputs = self.model.get_outputs_for_camera(camera=camera)
+                metrics, images = self.model.get_image_metrics_and_images(outputs, batch)
+                metrics["num_rays_per_sec"] = float(camera.height * camera.width) / (time() - start)
+                per_image.append(metrics)
+                if output_path is not None:
+                    for key, image in images.items():
+                        arr = (image.detach().clamp(0, 1).cpu().numpy() * 255).astype(np.uint8)
+                        Image.fromarray(arr).save(output_path / f"{image_prefix}_{key}_{idx:04d}.png")
+                progress.advance(task)
+        keys = list(dict.fromkeys(k for m in per_image for k in m))
+        result: dict = {}
+        for key in keys:
+            values = torch.tensor([m[key] for m in per_image if key in m], dtype=torch.float64)
+            result[key] = float(values.mean())
+            if get_std:
+                result[f"{key}_std"] = float(values.std()) if len(values) > 1 else 0.0
+            if len(values) != len(per_image):
+                result[f"{key}_num_images"] = len(values)
+        result["num_images"] = len(per_image)
+        if "lpips" not in result and step is None:
+            # Only for ns-eval's JSON (step None): the trainer logs metrics as scalars.
+            result["lpips_note"] = LPIPS_NOTE
+            CONSOLE.print(f"[yellow]note: {LPIPS_NOTE}")
+        self.train()
+        return result

@@ -1,0 +1,53 @@
+"""Print an ``ns-eval`` result as a table, with where the renders and checkpoint are."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from rich.console import Console
+from rich.table import Table
+
+from idsplat_ns.errors import IDSplatError, run_cli
+
+ROWS = (("psnr", "PSNR (dB)"), ("ssim", "SSIM"), ("dpsnr", "DPSNR (dB, moving vehicles)"), ("lpips", "LPIPS"))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("eval_json", type=Path)
+    parser.add_argument("--renders", type=Path, default=None)
+    parser.add_argument("--checkpoint-dir", type=Path, default=None)
+    args = parser.parse_args()
+
+    def run() -> None:
+        if not args.eval_json.is_file():
+            raise IDSplatError(f"{args.eval_json}: no evaluation result; run ns-eval first")
+        data = json.loads(args.eval_json.read_text())
+        results = data["results"]
+        table = Table(title=f"Held-out evaluation: {data.get('experiment_name', '')} ({results.get('num_images', '?')} images)")
+        table.add_column("metric")
+        table.add_column("mean", justify="right")
+        table.add_column("std", justify="right")
+        for key, name in ROWS:
+            if key in results:
+                n = results.get(f"{key}_num_images")
+                label = name + (f" [{n} images]" if n is not None else "")
+                table.add_row(label, f"{results[key]:.4f}", f"{results.get(key + '_std', float('nan')):.4f}")
+        console = Console()
+        console.print(table)
+        if "lpips_note" in results:
+            console.print(f"[yellow]{results['lpips_note']}")
+        if args.renders is not None:
+            console.print(f"renders:    {args.renders.resolve()}")
+        if args.checkpoint_dir is not None:
+            ckpts = sorted(args.checkpoint_dir.glob("*.ckpt"))
+            console.print(f"checkpoint: {ckpts[-1].resolve() if ckpts else args.checkpoint_dir}")
+        console.print(f"metrics:    {args.eval_json.resolve()}")
+
+    run_cli(run)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,184 @@
+"""The camera rasterizer: :func:`rasterize_camera` and its output :class:`CameraRender`."""
+
+from __future__ import annotations
+
+import importlib.util
+from dataclasses import dataclass
+from typing import Optional
+
+import torch
+from torch import Tensor
+
+from ..errors import IDSplatError
+from .projection import Projection, project_gaussians
+from .tile_composite import DEFAULT_CHUNK_ELEMS, TileComposite, plan_chunks
+from .tiles import intersect_tiles, tiles_to_image
+
+
+@dataclass
+class CameraRender:
+    """Per-pixel outputs of :func:`rasterize_camera` (no background composited)."""
+
+    features: Tensor  # [C, H, W, D] sum_i w_i f_i
+    alpha: Tensor  # [C, H, W, 1] sum_i w_i
+    depth: Tensor  # [C, H, W, 1] expected depth sum_i w_i d_i / alpha, 0 where alpha == 0
+    median_depth: Tensor  # [C, H, W, 1] depth where transmittance crosses 0.5 (see reference.py)
+    instance_id: Tensor  # [C, H, W] int64 instance of largest weight, -1 where alpha == 0
+    means2d: Tensor  # [C, N, 2] projected means (call .retain_grad() for densification stats)
+    radii: Tensor  # [C, N] int32 pixel radii, 0 = culled
+    depths: Tensor  # [C, N] camera-space depth of every Gaussian
+    instance_alpha: Optional[Tensor] = None  # [C, H, W, K] per-instance alpha (if requested)
+    instance_values: Optional[Tensor] = None  # [K] instance ID of each instance_alpha channel
+
+
+def _check_inputs(means, quats, scales, opacities, features, viewmats, Ks, instance_ids) -> None:
+    n = means.shape[0]
+    expect = {
+        "means": (means, (n, 3)),
+        "quats": (quats, (n, 4)),
+        "scales": (scales, (n, 3)),
+        "opacities": (opacities, (n,)),
+    }
+    for name, (t, shape) in expect.items():
+        if tuple(t.shape) != shape:
+            raise IDSplatError(f"rasterize_camera: {name} has shape {tuple(t.shape)}, expected {shape}")
+    if features.dim() != 2 or features.shape[0] != n or features.shape[1] < 1:
+        raise IDSplatError(f"rasterize_camera: features has shape {tuple(features.shape)}, expected ({n}, D>=1)")
+    c = viewmats.shape[0]
+    if viewmats.shape != (c, 4, 4) or Ks.shape != (c, 3, 3):
+        raise IDSplatError(
+            f"rasterize_camera: viewmats {tuple(viewmats.shape)} / Ks {tuple(Ks.shape)} must be [C,4,4] / [C,3,3]"
+        )
+    if instance_ids is not None and tuple(instance_ids.shape) != (n,):
+        raise IDSplatError(f"rasterize_camera: instance_ids has shape {tuple(instance_ids.shape)}, expected ({n},)")
+
+
+def _gsplat_available() -> bool:
+    return importlib.util.find_spec("gsplat") is not None
+
+
+def rasterize_camera(
+    means: Tensor,  # [N, 3]
+    quats: Tensor,  # [N, 4] wxyz
+    scales: Tensor,  # [N, 3]
+    opacities: Tensor,  # [N]
+    features: Tensor,  # [N, D]
+    viewmats: Tensor,  # [C, 4, 4] world-to-camera, OpenCV axes
+    Ks: Tensor,  # [C, 3, 3]
+    width: int,
+    height: int,
+    *,
+    instance_ids: Optional[Tensor] = None,  # [N] int64, 0 = static background
+    near_plane: float = 0.01,
+    far_plane: float = 1e10,
+    backend: str = "auto",
+    eps2d: float = 0.3,
+    tile_size: int = 8,
+    return_instance_alpha: bool = False,
+) -> CameraRender:
+    """Render C pinhole cameras: features, alpha, expected/median depth and instance IDs.
+
+    Gaussians are projected with :func:`project_gaussians` (gsplat's EWA projection with
+    ``eps2d`` low-pass), composited front to back per pixel with gsplat's rules (see
+    :mod:`idsplat_ns.render.reference`). Differentiable w.r.t. means, quats, scales, opacities,
+    features and viewmats. ``backend``: ``"torch"`` (tile rasterizer, any device), ``"gsplat"``
+    (CUDA kernels) or ``"auto"`` (gsplat when the inputs are on CUDA and gsplat is installed).
+    ``tile_size`` only trades speed against memory in the torch backend; it never changes the
+    image. ``return_instance_alpha`` adds the per-instance alpha maps (one channel per distinct
+    ID in ``instance_ids``).
+    """
+    _check_inputs(means, quats, scales, opacities, features, viewmats, Ks, instance_ids)
+    if backend not in ("auto", "torch", "gsplat"):
+        raise IDSplatError(f"rasterize_camera: backend={backend!r}; use 'auto', 'torch' or 'gsplat'")
+    if backend == "auto":
+        backend = "gsplat" if means.is_cuda and _gsplat_available() else "torch"
+    if backend == "gsplat":
+        from .gsplat_backend import rasterize_camera_gsplat
+
+        return rasterize_camera_gsplat(
+            means, quats, scales, opacities, features, viewmats, Ks, width, height,
+            instance_ids=instance_ids, near_plane=near_plane, far_plane=far_plane,
+            eps2d=eps2d, return_instance_alpha=return_instance_alpha,
+        )  # fmt: skip
+    proj = project_gaussians(
+        means, quats, scales, viewmats, Ks, width, height,
+        eps2d=eps2d, near_plane=near_plane, far_plane=far_plane,
+    )  # fmt: skip
+    return rasterize_projected(
+        proj, opacities, features, width, height,
+        instance_ids=instance_ids, tile_size=tile_size,
+        return_instance_alpha=return_instance_alpha,
+    )  # fmt: skip
+
+
+def rasterize_projected(
+    proj: Projection,
+    opacities: Tensor,  # [N]
+    features: Tensor,  # [N, D]
+    width: int,
+    height: int,
+    *,
+    instance_ids: Optional[Tensor] = None,  # [N] int64
+    tile_size: int = 8,
+    return_instance_alpha: bool = False,
+    chunk_elems: int = DEFAULT_CHUNK_ELEMS,
+) -> CameraRender:
+    """Torch tile rasterizer on already projected Gaussians (see :func:`rasterize_camera`).
+
+    Per-instance maps are composited as extra one-hot feature channels, one per distinct ID
+    among the Gaussians that touch the image, so their cost grows with the visible instances.
+    """
+    cams, n = proj.depths.shape
+    d = features.shape[1]
+    device, dtype = features.device, features.dtype
+    isects = intersect_tiles(
+        proj.means2d.detach(), proj.covars2d.detach(), proj.depths.detach(), proj.radii,
+        opacities.detach(), width, height, tile_size,
+    )  # fmt: skip
+    gid = isects.gaussian_ids
+    flat_depths = proj.depths.reshape(-1)
+    columns = [features.repeat(cams, 1), flat_depths[:, None], torch.ones_like(flat_depths[:, None])]
+    inst_values = None
+    if instance_ids is not None:
+        # Channels only for the IDs of Gaussians that touch the image.
+        inst_values = torch.unique(instance_ids[torch.unique(gid % n)])
+        k = inst_values.numel()
+        slot = torch.searchsorted(inst_values, instance_ids).clamp_max(max(k - 1, 0))
+        match = (inst_values[slot] == instance_ids) if k else torch.zeros_like(instance_ids, dtype=torch.bool)
+        onehot = (slot[:, None] == torch.arange(k, device=device)[None, :]) & match[:, None]
+        columns.append(onehot.to(dtype).repeat(cams, 1))
+    feats = torch.cat(columns, dim=1)  # [C*N, D + 2 (+ K)]
+    chunks = plan_chunks(isects, chunk_elems)
+    pix, crossing = TileComposite.apply(
+        proj.means2d.reshape(-1, 2), proj.conics.reshape(-1, 3), opacities.repeat(cams), feats,
+        isects, chunks,
+    )  # fmt: skip
+    out = tiles_to_image(pix, isects, width, height)
+    feats_img, depth_sum, alpha = out[..., :d], out[..., d : d + 1], out[..., d + 1 : d + 2]
+    has = alpha > 0
+    depth = torch.where(has, depth_sum / torch.where(has, alpha, torch.ones_like(alpha)), 0.0)
+
+    # Median: the Gaussian at which T first drops to <= 0.5 is the crossing-th of its tile list.
+    counts = (isects.tile_offsets[1:] - isects.tile_offsets[:-1])[:, None]
+    found = crossing < counts  # [T, B*B]
+    row = (isects.tile_offsets[:-1, None] + crossing).clamp_max(max(gid.numel() - 1, 0))
+    med_depth = flat_depths[gid[row]] if gid.numel() else torch.zeros(row.shape, device=device)
+    med = tiles_to_image(torch.where(found, med_depth, 0.0).reshape(-1, 1), isects, width, height)
+    found_img = tiles_to_image(found.reshape(-1, 1), isects, width, height)
+    median_depth = torch.where(found_img, med, depth)
+
+    inst_alpha = None
+    if instance_ids is None:
+        inst_id = torch.where(has[..., 0], 0, -1).to(torch.int64)
+    else:
+        inst_alpha = out[..., d + 2 :]
+        if inst_values.numel() == 0:
+            inst_id = torch.full(has.shape[:-1], -1, dtype=torch.int64, device=device)
+        else:
+            inst_id = torch.where(has[..., 0], inst_values[inst_alpha.detach().argmax(-1)], -1)
+    return CameraRender(
+        features=feats_img, alpha=alpha, depth=depth, median_depth=median_depth,
+        instance_id=inst_id, means2d=proj.means2d, radii=proj.radii, depths=proj.depths,
+        instance_alpha=inst_alpha if return_instance_alpha else None,
+        instance_values=inst_values if return_instance_alpha else None,
+    )  # fmt: skip

@@ -1,0 +1,1 @@
+"""Registered nerfstudio methods and dataparsers of idsplat_ns (see idsplat.py)."""

@@ -1,0 +1,26 @@
+"""Shared fixtures: paths to ../shared/data and small generated scenes (cached per session)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED_DATA = REPO.parent / "shared" / "data"
+
+
+@pytest.fixture(scope="session")
+def shared_data() -> Path:
+    if not SHARED_DATA.is_dir():
+        pytest.skip(f"{SHARED_DATA} not present (real test data lives beside the repository)")
+    return SHARED_DATA
+
+
+@pytest.fixture(scope="session")
+def tiny_street(tmp_path_factory) -> Path:
+    """The synthetic street's ``tiny`` preset, written once per test session."""
+    from idsplat_ns.data.synthetic import generate_sequence
+
+    out = tmp_path_factory.mktemp("tiny_street")
+    return Path(generate_sequence(out / "tiny-seed0", preset="tiny", seed=0))

@@ -1,0 +1,57 @@
+import numpy as np
+import pytest
+import torch
+
+from idsplat_ns.eval.image_metrics import psnr, ssim
+
+
+def test_psnr_closed_form_and_mask():
+    gt = torch.zeros(4, 5, 3)
+    pred = gt + 0.1
+    assert float(psnr(pred, gt)) == pytest.approx(20.0, abs=1e-4)
+    pred2 = gt.clone()
+    pred2[:2] = 0.01  # error only in the top half
+    mask = torch.zeros(4, 5, dtype=torch.bool)
+    mask[:2] = True
+    assert float(psnr(pred2, gt, mask)) == pytest.approx(40.0, abs=1e-3)
+    assert float(psnr(pred2, gt, ~mask)) == pytest.approx(100.0, abs=1e-3)  # clamped perfect score
+
+
+def test_ssim_matches_torchmetrics():
+    from torchmetrics.functional.image import structural_similarity_index_measure as tm_ssim
+
+    gen = torch.Generator().manual_seed(0)
+    a = torch.rand(2, 3, 40, 50, generator=gen)
+    b = (a + 0.1 * torch.randn(2, 3, 40, 50, generator=gen)).clamp(0, 1)
+    assert float(ssim(a, b)) == pytest.approx(float(tm_ssim(b, a, data_range=1.0)), abs=1e-5)
+    assert float(ssim(a, a)) == pytest.approx(1.0, abs=1e-6)
+
+
+def test_lpips_matches_reference_package(tmp_path):
+    lpips_pkg = pytest.importorskip("lpips")
+    from idsplat_ns.eval.lpips import LPIPS
+
+    torch.manual_seed(0)
+    # Reference with a random backbone (pnet_rand: no download) and the packaged calibration layers.
+    ref = lpips_pkg.LPIPS(pretrained=True, net="alex", pnet_rand=True, verbose=False).eval()
+    state = {}
+    for key, value in ref.net.state_dict().items():  # net.sliceK.<original index>.weight
+        _, idx, kind = key.split(".")
+        state[f"features.{idx}.{kind}"] = value
+    backbone = tmp_path / "alexnet.pth"
+    torch.save(state, backbone)
+    ours = LPIPS.from_files(backbone, net="alex")
+    gen = torch.Generator().manual_seed(1)
+    a = torch.rand(64, 64, 3, generator=gen)
+    b = (a + 0.2 * torch.rand(64, 64, 3, generator=gen)).clamp(0, 1)
+    expected = ref(a.permute(2, 0, 1)[None], b.permute(2, 0, 1)[None], normalize=True).item()
+    assert float(ours(a, b)) == pytest.approx(expected, rel=1e-5)
+    assert float(ours(a, a)) == pytest.approx(0.0, abs=1e-7)
+
+
+def test_lpips_missing_backbone_is_one_line(tmp_path):
+    from idsplat_ns.errors import IDSplatError
+    from idsplat_ns.eval.lpips import LPIPS
+
+    with pytest.raises(IDSplatError, match="LPIPS backbone weights not found"):
+        LPIPS.from_files(tmp_path / "nope.pth")
