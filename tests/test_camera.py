@@ -59,3 +59,25 @@ def test_points_beyond_the_lens_monotonic_range_are_rejected():
     assert not project_points(far_side, c2w, intr).valid[0]
     assert project_points(np.array([[0.3, 0.0, 1.0]]), c2w, intr).valid[0]
     assert Intrinsics(fx=1, fy=1, cx=0, cy=0, width=1, height=1).max_valid_radius2 == float("inf")
+
+
+def test_undistorted_view_matches_pinhole_projection():
+    from idsplat_ns.data.camera import CameraImage
+    from idsplat_ns.data.images import load_rgb, undistorted_view
+
+    dist = (-0.3, 0.08, 0.0, 0.0, 0.0)
+    lens = Intrinsics(fx=100, fy=100, cx=80, cy=60, width=160, height=120, distortion=dist)
+    # A distorted image of a single bright world point: draw it where the full lens model puts it.
+    point = np.array([[0.45, -0.3, 1.0]])  # camera frame = world frame here
+    uv_d = project_points(point, np.eye(4), lens).uv[0]
+    pixels = np.zeros((120, 160, 3), np.uint8)
+    r, c = int(round(uv_d[1])), int(round(uv_d[0]))
+    pixels[r - 1 : r + 2, c - 1 : c + 2] = 255
+    image = CameraImage(camera="cam", frame_index=0, time=0.0, raw_timestamp=0.0, camera_to_world=np.eye(4), intrinsics=lens, image=pixels)
+    view = undistorted_view(image)
+    assert not view.intrinsics.has_distortion
+    out = load_rgb(view).astype(float)[..., 0]
+    ys, xs = np.nonzero(out > 0.5 * out.max())
+    uv_pinhole = project_points(point, np.eye(4), view.intrinsics).uv[0]
+    assert abs(xs.mean() - uv_pinhole[0]) < 1.0 and abs(ys.mean() - uv_pinhole[1]) < 1.0
+    assert np.hypot(*(uv_pinhole - uv_d)) > 3  # the lens really moved it (4.4 px here)

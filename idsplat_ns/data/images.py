@@ -8,8 +8,10 @@ from typing import Optional
 import numpy as np
 from PIL import Image, UnidentifiedImageError
 
-from idsplat_ns.data.camera import CameraImage
+from idsplat_ns.data.camera import CameraImage, Intrinsics
 from idsplat_ns.errors import IDSplatError
+
+UNDISTORT_FROM = "undistort_from"  # CameraImage.metadata key: the lens model the pixels still have
 
 
 def _open(image: CameraImage) -> Image.Image:
@@ -27,9 +29,38 @@ def _open(image: CameraImage) -> Image.Image:
     raise IDSplatError(f"{image.camera} frame {image.frame_index}: the image has no path, bytes or pixels")
 
 
+def undistorted_view(image: CameraImage) -> CameraImage:
+    """The same image seen through a pinhole with the same K: pixels are undistorted on load.
+
+    Rasterizers are pinhole; undistorting the image once (rather than distorting every render)
+    keeps masks, projections and renders consistent through ``intrinsics``.
+    """
+    from dataclasses import replace
+
+    if not image.intrinsics.has_distortion:
+        return image
+    pinhole = replace(image.intrinsics, distortion=(0.0, 0.0, 0.0, 0.0, 0.0))
+    return replace(image, intrinsics=pinhole, metadata={**image.metadata, UNDISTORT_FROM: image.intrinsics})
+
+
+def _undistort(pixels: np.ndarray, lens: Intrinsics) -> np.ndarray:
+    import cv2
+
+    h, w = pixels.shape[:2]
+    lens = lens.scaled(w / lens.width) if w != lens.width else lens
+    maps = cv2.initUndistortRectifyMap(lens.K, np.array(lens.distortion), None, lens.K, (w, h), cv2.CV_32FC1)
+    return cv2.remap(pixels, maps[0], maps[1], interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+
+
 def load_rgb(image: CameraImage, scale: float = 1.0) -> np.ndarray:
-    """The image as [H, W, 3] uint8, resized by ``scale`` to the size of ``intrinsics.scaled(scale)``."""
+    """The image as [H, W, 3] uint8, resized by ``scale`` to the size of ``intrinsics.scaled(scale)``.
+
+    Views made by :func:`undistorted_view` are undistorted at full resolution first.
+    """
     im = _open(image)
+    lens = image.metadata.get(UNDISTORT_FROM)
+    if lens is not None:
+        im = Image.fromarray(_undistort(np.asarray(im), lens))
     target = image.intrinsics.scaled(scale)
     if im.size != (target.width, target.height):
         im = im.resize((target.width, target.height), Image.BILINEAR if scale >= 1 else Image.BOX)

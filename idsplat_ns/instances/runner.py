@@ -142,13 +142,14 @@ def run_preprocessing(
             with atomic_path(mask_dir) as tmp:
                 source.generate(scene, tmp, progress)
             masks = load_mask_set(mask_dir, source=source.name)
-    else:
+    else:  # read in place from the user's folder: nothing cached
+        cached = False
         masks = source.generate(scene, cache_dir, progress)
     if config.mask_noise is not None:
         mask_key = hash_json({"masks": mask_key, "noise": asdict(config.mask_noise)})
         noisy_dir = cache_dir / f"masks-noisy-{mask_key}"
-        if not noisy_dir.is_dir():
-            cached = False
+        cached = noisy_dir.is_dir()  # the noisy copy is what the later stages read
+        if not cached:
             with atomic_path(noisy_dir) as tmp:
                 perturb_mask_set(masks, scene, tmp, config.mask_noise)
         masks = InstanceMaskSet(noisy_dir, load_mask_set(noisy_dir).labels, f"{masks.source}+noise")

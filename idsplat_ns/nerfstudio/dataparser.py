@@ -16,6 +16,7 @@ from nerfstudio.cameras.cameras import Cameras, CameraType
 from nerfstudio.data.dataparsers.base_dataparser import DataParser, DataParserConfig, DataparserOutputs
 from nerfstudio.data.scene_box import SceneBox
 
+from idsplat_ns.data.images import undistorted_view
 from idsplat_ns.data.scene import Scene
 from idsplat_ns.data.split import split_frames
 from idsplat_ns.errors import IDSplatError
@@ -116,7 +117,8 @@ class IDSplatDataParser(DataParser):
         scene = self.scene
         train_idx, eval_idx = split_frames(scene.num_frames, self.config.train_fraction, self.config.eval_every)
         frame_ids = set(scene.frame_indices[train_idx if split == "train" else eval_idx].tolist())
-        images = [im for im in scene.images if im.frame_index in frame_ids]
+        # Pinhole rasterizers: distorted images (Waymo) are undistorted on load, keeping their K.
+        images = [undistorted_view(im) for im in scene.images if im.frame_index in frame_ids]
         if not images:
             raise IDSplatError(f"no {split} images: check --cameras, the frame range and the split options")
         camera_names = scene.camera_names

@@ -74,13 +74,19 @@ def project_spherical(
     x, y, z = p.unbind(-1)
     rho2 = x * x + y * y
     r = torch.sqrt(rho2 + z * z)
+    phi = torch.atan2(y, x)
     ok = (r > near_plane) & (r < far_plane)
     r_safe = torch.where(ok, r, torch.ones_like(r))
     # Floor on the horizontal distance: at the poles azimuth is undefined; the floor makes the
     # azimuth variance huge (full circle) instead of infinite.
-    rho2_safe = torch.clamp_min(rho2, (1e-6 * r_safe) ** 2)
+    floor = 1e-6 * r_safe
+    at_pole = rho2 <= floor * floor
+    # Exactly at a pole the azimuth direction is undefined; pretend the Gaussian sits `floor`
+    # off the axis so that its azimuth extent becomes the full circle rather than zero.
+    x = torch.where(at_pole, floor, x)
+    y = torch.where(at_pole, torch.zeros_like(y), y)
+    rho2_safe = torch.where(at_pole, floor * floor, rho2)
     rho = torch.sqrt(rho2_safe)
-    phi = torch.atan2(y, x)
     theta = torch.atan2(z, rho)
     two_pi = 2.0 * math.pi
     width = two_pi / azimuth_resolution
@@ -179,7 +185,7 @@ def rasterize_lidar(
     )  # fmt: skip
     isects = intersect_tiles(
         proj.means2d.detach(), proj.covars2d.detach(), proj.ranges.detach(), proj.radii,
-        opacities.detach(), width, height, tile_size, wrap_x=True,
+        opacities.detach(), width, height, tile_size, wrap_x=True, samples_anywhere=True,
     )  # fmt: skip
 
     # Rays into tiles and slots (rank inside the tile), padded to the fullest tile.

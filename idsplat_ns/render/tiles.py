@@ -72,11 +72,13 @@ def intersect_tiles(
     height: int,
     tile_size: int,
     wrap_x: bool = False,
+    samples_anywhere: bool = False,
 ) -> TileIntersections:
     """All (tile, Gaussian) pairs, sorted by tile and front to back inside each tile.
 
     ``wrap_x``: x is periodic with period ``width`` (a multiple of ``tile_size``), as lidar
     azimuth is; a Gaussian across the seam then touches tiles at both ends.
+    ``samples_anywhere``: samples lie anywhere in their cell (lidar rays), not at its centre.
     """
     cams, n = depths.shape
     device = means2d.device
@@ -90,16 +92,18 @@ def intersect_tiles(
     cam_idx = torch.arange(cams, device=device).repeat_interleave(n)
     ext = alpha_extent(covars2d.reshape(-1, 3), opacities.repeat(cams))
     mx, my = means2d.reshape(-1, 2).unbind(-1)
-    # Pixel columns x whose centre x + 0.5 lies within [mx - ex, mx + ex].
-    x_lo = torch.ceil(mx - ext[:, 0] - 0.5)
-    x_hi = torch.floor(mx + ext[:, 0] - 0.5)
+    # Cells x whose sample (centre x + 0.5, or anywhere in [x, x + 1)) can lie in the box.
+    half = 0.0 if samples_anywhere else 0.5
+    round_lo = torch.floor if samples_anywhere else torch.ceil
+    x_lo = round_lo(mx - ext[:, 0] - half)
+    x_hi = torch.floor(mx + ext[:, 0] - half)
     if wrap_x:  # keep the unclamped range (tiles are taken modulo tiles_x below)
         x_lo = torch.where(x_hi - x_lo + 1 >= width, torch.zeros_like(x_lo), x_lo).clamp(-width, 2 * width)
         x_hi = torch.minimum(x_hi, x_lo + width - 1).clamp(-width, 2 * width)
     else:
         x_lo, x_hi = x_lo.clamp(0, width - 1), x_hi.clamp(-1, width - 1)
-    y_lo = torch.ceil(my - ext[:, 1] - 0.5).clamp(0, height - 1)
-    y_hi = torch.floor(my + ext[:, 1] - 0.5).clamp(-1, height - 1)
+    y_lo = round_lo(my - ext[:, 1] - half).clamp(0, height - 1)
+    y_hi = torch.floor(my + ext[:, 1] - half).clamp(-1, height - 1)
     ok = (
         (radii.reshape(-1) > 0)
         & (ext[:, 0] >= 0)

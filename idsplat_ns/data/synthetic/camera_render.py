@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from idsplat_ns.data.synthetic import materials as mat
 from idsplat_ns.data.synthetic import textures
 from idsplat_ns.data.synthetic.raycast import RayCaster, RayHits
 from idsplat_ns.data.synthetic.rig import PinholeCamera
@@ -69,7 +70,7 @@ def shade(caster: RayCaster, hits: RayHits, directions: np.ndarray, times: np.nd
     colour = np.where(surf.glass[:, None], colour + fresnel[:, None] * env, colour)
     # Paint and glass highlights of the sun.
     material = caster.part_material[hits.part[rows]]
-    shiny = surf.glass | (material == 6) | (material == 9)  # CAR_BODY, BUS_BODY
+    shiny = surf.glass | (material == mat.CAR_BODY) | (material == mat.BUS_BODY)
     spec = np.clip((refl_dir @ sun), 0.0, 1.0) ** 60 * (lit > 0)
     colour = colour + np.where(shiny, 0.6 * spec, 0.0)[:, None] * SUN_COLOR
     colour = np.where(surf.emissive[:, None], surf.albedo, colour)

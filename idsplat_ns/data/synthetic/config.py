@@ -110,7 +110,7 @@ PRESETS: dict[str, SyntheticConfig] = {
     "bench": SyntheticConfig(
         name="bench",
         num_frames=60,
-        cameras=CameraRigConfig(image_width=640, image_height=384, supersample=2),
+        cameras=CameraRigConfig(image_width=640, image_height=384),
         lidar=LidarConfig(azimuth_steps=1800),
     ),
 }

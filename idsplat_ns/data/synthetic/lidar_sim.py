@@ -66,10 +66,10 @@ def simulate_sweep(caster: RayCaster, frame_time: float, rng: np.random.Generato
     noise = rng.normal(0.0, cfg.range_noise_std, n)
     i_noise = rng.normal(0.0, 2.0, n)
     keep = u_drop[rows] >= drop_p
-    rows, surf_keep = rows[keep], keep
+    rows = rows[keep]
     cos_i = np.abs((hits.normal[rows] * dirs[rows]).sum(1))
-    falloff = np.where(surf.retro[surf_keep], 1.0, 0.3 + 0.7 * cos_i)
-    intensity = np.clip(surf.reflectivity[surf_keep] * falloff + i_noise[rows], 0.0, 255.0)
+    falloff = np.where(surf.retro[keep], 1.0, 0.3 + 0.7 * cos_i)
+    intensity = np.clip(surf.reflectivity[keep] * falloff + i_noise[rows], 0.0, 255.0)
     rng_noisy = hits.distance[rows] + noise[rows]
     points = origins[rows] + rng_noisy[:, None] * dirs[rows]
     miss = np.ones(n, bool)

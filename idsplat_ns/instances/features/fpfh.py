@@ -3,7 +3,6 @@ without images. Normals and histograms are computed per observation (one instanc
 
 from __future__ import annotations
 
-import ctypes
 from dataclasses import dataclass
 
 import numpy as np
@@ -16,11 +15,11 @@ from idsplat_ns.instances.lifting import LiftedInstances
 
 
 def import_open3d():
-    """Import open3d. Its wheel links against libusb-1.0, which many machines lack; the
-    ``libusb-package`` dependency ships the library, so it is loaded first."""
-    import libusb_package
+    """Import open3d, first applying the project's libusb guard (a no-op where the system has
+    libusb; see :mod:`idsplat_ns._compat.libusb`), in case the start-up hook is not installed."""
+    from idsplat_ns._compat.libusb import ensure_loadable
 
-    ctypes.CDLL(str(libusb_package.get_library_path()), mode=ctypes.RTLD_GLOBAL)
+    ensure_loadable()
     import open3d
 
     return open3d

@@ -30,10 +30,11 @@ class SmoothingConfig:
     """Std of the zero-mean curvature prior applied at every step [1/m]."""
     outlier_threshold: float = 1.345
     """Measurements whose whitened error (after the first pass) exceeds this are dropped."""
-    outlier_scale_adaptive: bool = True
-    """Raise the threshold to ``adaptive_outlier_factor`` x the median whitened error when that is
-    larger, so that registration noise beyond the configured sigmas does not flag most measurements
-    as outliers. False applies ``outlier_threshold`` alone, as the paper states."""
+    outlier_scale_adaptive: bool = False
+    """False (default): ``outlier_threshold`` alone, as the paper states. True raises the threshold
+    to ``adaptive_outlier_factor`` x the median whitened error when that is larger, so that
+    registration noise well beyond the configured sigmas (e.g. 0.5 m) does not flag most
+    measurements as outliers (measured in docs/smoothing.md)."""
     adaptive_outlier_factor: float = 2.5
     """Multiple of the median whitened error used by ``outlier_scale_adaptive``."""
     first_pass_iterations: int = 1
