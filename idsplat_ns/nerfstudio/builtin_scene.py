@@ -5,9 +5,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from rich.console import Console
-
-CONSOLE = Console()
+from idsplat_ns.errors import IDSplatError
 
 
 def cache_root() -> Path:
@@ -17,13 +15,14 @@ def cache_root() -> Path:
 
 def builtin_street(preset: str = "small", seed: int = 0) -> Path:
     """Path to the built-in street of ``preset``/``seed``, generating it the first time."""
-    from idsplat_ns.data.synthetic import generate_sequence, get_preset, sequence_name
+    from idsplat_ns.data.synthetic import generate_sequence
 
     parent = cache_root() / "synthetic"
-    folder = parent / sequence_name(get_preset(preset), seed)
-    # The generator writes atomically (temporary folder, then rename): a folder that exists is complete.
-    if (folder / "idsplat_extras" / "generator.json").is_file():
-        return folder
-    CONSOLE.print(f"[bold]Generating the built-in synthetic street ({preset}, seed {seed}) in {folder} ...")
     parent.mkdir(parents=True, exist_ok=True)
-    return Path(generate_sequence(parent, preset=preset, seed=seed))
+    try:
+        # Returns the cached folder when its generator record (version, settings, seed) matches.
+        return Path(generate_sequence(parent, preset=preset, seed=seed))
+    except IDSplatError:
+        # Made by another generator version: this cache is the project's own, so replace it
+        # (written to a temporary folder, then renamed). A bad preset raises again, as it should.
+        return Path(generate_sequence(parent, preset=preset, seed=seed, overwrite=True))
