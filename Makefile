@@ -1,5 +1,5 @@
 # idsplat_ns: `make demo` (install, train on the built-in street, evaluate) and `make test`.
-PYTHON ?= python3
+PYTHON ?= python3.11
 VENV   ?= .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.idsplat-installed
@@ -10,6 +10,8 @@ DEMO   := outputs/demo
 # torch is installed first and alone: `torch==2.13.0` takes the CPU wheel where one is provided,
 # so no later requirement can pull the multi-GB CUDA build.
 $(STAMP): pyproject.toml
+	@$(PYTHON) -c 'import sys; sys.exit(0 if (3, 10) <= sys.version_info[:2] < (3, 13) else 1)' \
+		|| { echo "error: $(PYTHON) is not Python 3.10-3.12; run make with PYTHON=python3.11 (or 3.10/3.12)"; exit 2; }
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip setuptools wheel
 	$(BIN)/pip install --quiet torch==2.13.0
@@ -23,7 +25,7 @@ test: install
 	$(BIN)/python -m pytest -q -p no:cacheprovider
 
 test-fast: install
-	$(BIN)/python -m pytest -q -m "not slow"
+	$(BIN)/python -m pytest -q -p no:cacheprovider -m "not slow"
 
 demo: install
 	$(BIN)/ns-train idsplat-fast --vis tensorboard --output-dir outputs --experiment-name demo --timestamp run

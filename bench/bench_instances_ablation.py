@@ -34,7 +34,7 @@ from idsplat_ns.instances.trajectory_estimation import TrajectoryConfig
 def variants(root: Path, seed: int) -> dict[str, PreprocessConfig]:
     extras = root / "idsplat_extras"
     masks = MaskConfig(kind="precomputed", precomputed=PrecomputedMasksConfig(extras / "instance_masks", extras / "instances.json"))
-    base = PreprocessConfig(masks=masks, mask_noise=MaskNoiseConfig(seed=seed), features=FeatureConfig(kind="daisy"), smoothing=False)
+    base = PreprocessConfig(masks=masks, mask_noise=MaskNoiseConfig(seed=seed), features=FeatureConfig(kind="daisy"), smoothing=None)
     return {
         "full (DAISY)": base,
         "a) no erosion": replace(base, lifting=LiftingConfig(erosion_px=0)),

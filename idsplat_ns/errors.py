@@ -6,6 +6,7 @@ points catch it and print ``error: <message>`` without a traceback (see :func:`r
 
 from __future__ import annotations
 
+import atexit
 import os
 import sys
 from typing import Callable, TypeVar
@@ -40,7 +41,10 @@ def install_excepthook() -> None:
         if issubclass(exc_type, IDSplatError):
             print(f"error: {exc}", file=sys.stderr)
             sys.stderr.flush()
-            os._exit(2)  # status 2 like run_cli; nothing left to clean up for a refused input
+            # Status 2 like run_cli. Exit handlers (log writers) run first; os._exit then ends the
+            # process even if a library left non-daemon threads (a viewer server) running.
+            atexit._run_exitfuncs()
+            os._exit(2)
         previous(exc_type, exc, tb)
 
     hook._idsplat = True  # type: ignore[attr-defined]

@@ -56,7 +56,8 @@ def test_waymo_dataparser_on_the_real_frame(shared_data):
     from idsplat_ns.nerfstudio.dataparser import WaymoDataParserConfig
     from idsplat_ns.nerfstudio.dataset import IDSplatDataset
 
-    cfg = WaymoDataParserConfig(data=shared_data / "waymo" / "pvps_data_one_frame.tfrecord", cameras=("FRONT",), downscale_factor=4)
+    cfg = WaymoDataParserConfig(data=shared_data / "waymo" / "pvps_data_one_frame.tfrecord", cameras=("FRONT",),
+                                downscale_factor=4, eval_every=None, train_fraction=1.0)  # one frame: train on it
     out = cfg.setup().get_dataparser_outputs("train")
     assert len(out.image_filenames) == 1 and int(out.cameras.width[0]) == 480 and int(out.cameras.height[0]) == 320
     image = out.metadata["split_images"][0]

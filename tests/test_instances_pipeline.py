@@ -40,7 +40,7 @@ def _config(root: Path, **kw) -> PreprocessConfig:
 
 def test_noisy_masks_recover_moving_vehicle_poses(street, tmp_path):
     root, scene = street
-    result = run_preprocessing(scene, _config(root, smoothing=False), tmp_path / "cache", progress=False, verbose=False)
+    result = run_preprocessing(scene, _config(root, smoothing=None), tmp_path / "cache", progress=False, verbose=False)
     s = summarise_errors(scene, result.tracks, min_points=50)
     print(f"median translation {s.median_translation:.3f} m, rotation {s.median_rotation_deg:.2f} deg over "
           f"{s.frames_evaluated} frames; matched {s.matched_tracks}/{s.moving_vehicle_tracks} moving vehicles")
@@ -57,7 +57,7 @@ def test_noisy_masks_recover_moving_vehicle_poses(street, tmp_path):
 
 def test_centroid_ablation_through_the_runner(street, tmp_path):
     root, scene = street
-    cfg = _config(root, smoothing=False, trajectory=TrajectoryConfig(method="centroid"))
+    cfg = _config(root, smoothing=None, trajectory=TrajectoryConfig(method="centroid"))
     result = run_preprocessing(scene, cfg, tmp_path / "cache", progress=False, verbose=False)
     assert result.feature_extractor is None
     assert [t.name for t in result.timings] == ["mask generation", "point painting", "registration", "static conversion", "smoothing"]
@@ -81,13 +81,11 @@ def test_second_run_reuses_every_cache_and_smooths(street, tmp_path, capsys):
     assert [i.instance_id for i in loaded.instances] == [i.instance_id for i in first.tracks.instances]
     for a, b in zip(loaded.instances, first.tracks.instances):
         np.testing.assert_allclose(a.poses, b.poses)
-    if smoothing.note.startswith("skipped"):
-        pytest.skip("smoothing module unavailable: the stage was skipped")
     assert smoothing.cached and loaded.metadata.get("smoothed")
     for inst in loaded.instances:
         assert inst.measured_valid is not None and inst.valid.sum() >= inst.measured_valid.sum()
     # a changed setting invalidates only the stages after it
-    third = run_preprocessing(scene, _config(root, smoothing=False, trajectory=TrajectoryConfig(min_points=11)),
+    third = run_preprocessing(scene, _config(root, smoothing=None, trajectory=TrajectoryConfig(min_points=11)),
                               tmp_path / "cache", progress=False, verbose=False)
     cached = {t.name: t.cached for t in third.timings}
     assert cached["features"] and not cached["registration"]

@@ -17,6 +17,12 @@ from idsplat_ns.data.scene import Scene
 from idsplat_ns.data.tracks import box_corners, label_group
 
 
+def _at_scale(image: CameraImage, intr) -> CameraImage:
+    from dataclasses import replace
+
+    return image if intr == image.intrinsics else replace(image, intrinsics=intr)
+
+
 def dynamic_mask(
     scene: Scene,
     image: CameraImage,
@@ -35,48 +41,48 @@ def dynamic_mask(
     if instance_map is not None and classes is not None:
         moving_ids = [k for k, v in classes.items() if v.get("moving") and label_group(v.get("label", "")) in groups]
         return np.isin(instance_map, moving_ids)
+    import cv2
+
     mask = np.zeros((intr.height, intr.width), np.uint8)
     for track in scene.tracks:
         if not track.moving or track.group not in groups:
             continue
-        hit = np.nonzero(track.frame_indices == image.frame_index)[0]
-        if len(hit) == 0:
+        k = track.index_of_frame(image.frame_index)
+        if k is None:
             continue
-        k = hit[0]
         if min_lidar_points is not None and track.num_lidar_points is not None and track.num_lidar_points[k] < min_lidar_points:
             continue
-        _fill_box(mask, box_corners(track.poses[k], track.size), image.camera_to_world, intr)
+        poly = box_silhouette(_at_scale(image, intr), track.poses[k], track.size)
+        if poly is not None and len(poly) >= 3:
+            cv2.fillConvexPoly(mask, poly, 1)
     return mask.astype(bool)
 
 
-def _fill_box(mask: np.ndarray, corners: np.ndarray, camera_to_world: np.ndarray, intr) -> None:
+_EDGES = [(a, b) for a in range(8) for b in range(a + 1, 8) if bin(a ^ b).count("1") == 1]  # 12 box edges
+
+
+def box_silhouette(image: CameraImage, pose: np.ndarray, size: np.ndarray, near: float = 0.1) -> Optional[np.ndarray]:
+    """Pixel polygon [K, 2] int32 (convex hull) of a box (pose [4, 4] box-to-world, size [3]) in an
+    image, or None when it is entirely behind the camera's ``near`` plane.
+
+    Parts nearer than ``near`` are clipped away (the crossing points of the box edges are kept),
+    so partly visible boxes still cover the right pixels; the rest is projected with the full
+    camera model.
+    """
     import cv2
 
-    from idsplat_ns.data.camera import project_points
-
-    proj = project_points(corners, camera_to_world, intr, min_depth=0.1)
-    in_front = proj.depth > 0.1
-    if in_front.sum() < 3:
-        return
-    if not np.all(in_front):
-        # Clip the box to the near plane by keeping its in-front corners plus the points where
-        # its edges cross the plane, so partly visible boxes still cover the right pixels.
-        corners = _clip_box_to_near_plane(corners, camera_to_world, 0.1)
-        proj = project_points(corners, camera_to_world, intr, min_depth=0.05)
-    hull = cv2.convexHull(np.round(proj.uv).astype(np.int32).clip(-10**6, 10**6))
-    cv2.fillConvexPoly(mask, hull, 1)
-
-
-def _clip_box_to_near_plane(corners: np.ndarray, camera_to_world: np.ndarray, near: float) -> np.ndarray:
-    R, t = camera_to_world[:3, :3], camera_to_world[:3, 3]
+    corners = box_corners(pose, size)
+    R, t = image.camera_to_world[:3, :3], image.camera_to_world[:3, 3]
     cam = (corners - t) @ R
-    z = cam[:, 2]
-    keep = [corners[i] for i in range(8) if z[i] > near]
-    for i in range(8):
-        for j in range(i + 1, 8):
-            if bin(i ^ j).count("1") != 1:  # box edges join corners differing in one sign
-                continue
-            if (z[i] > near) != (z[j] > near):
-                s = (near - z[i]) / (z[j] - z[i])
-                keep.append(corners[i] + s * (corners[j] - corners[i]))
-    return np.asarray(keep)
+    front = cam[:, 2] > near
+    if not front.any():
+        return None
+    pts = [cam[front]]
+    for a, b in _EDGES:
+        if front[a] != front[b]:
+            w = (near - cam[a, 2]) / (cam[b, 2] - cam[a, 2])
+            pts.append((cam[a] + w * (cam[b] - cam[a]))[None])
+    world = np.concatenate(pts) @ R.T + t
+    uv = image.project(world).uv
+    hull = cv2.convexHull(np.round(uv).clip(-1e6, 1e6).astype(np.int32))  # far-off corners stay int32
+    return hull.reshape(-1, 2)

@@ -91,10 +91,14 @@ class Scene:
             return None
         return min(self.lidar, key=lambda s: abs(s.time - time))
 
-    def all_lidar_points(self, max_points: Optional[int] = None, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-        """World points [M, 3] of every returned ray and their times [M], optionally subsampled."""
-        pts = [s.points for s in self.lidar]
-        times = [s.times[s.returned] for s in self.lidar]
+    def all_lidar_points(
+        self, max_points: Optional[int] = None, seed: int = 0, frames: Optional[set[int]] = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """World points [M, 3] of every returned ray and their times [M], optionally only of the
+        sweeps whose dataset frame index is in ``frames`` (e.g. the training split), subsampled."""
+        sweeps = [s for s in self.lidar if frames is None or s.frame_index in frames]
+        pts = [s.points for s in sweeps]
+        times = [s.times[s.returned] for s in sweeps]
         if not pts:
             return np.zeros((0, 3)), np.zeros(0)
         points, point_times = np.concatenate(pts), np.concatenate(times)

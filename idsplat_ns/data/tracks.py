@@ -61,10 +61,15 @@ class ObjectTrack:
     def group(self) -> str:
         return label_group(self.label)
 
+    def index_of_frame(self, frame_index: int) -> Optional[int]:
+        """Row of ``frame_index`` in this track's arrays, or None where the object is not annotated."""
+        hit = np.nonzero(self.frame_indices == frame_index)[0]
+        return None if len(hit) == 0 else int(hit[0])
+
     def pose_at_frame(self, frame_index: int) -> Optional[np.ndarray]:
         """Box-to-world [4, 4] at a frame, or None where the object is not annotated."""
-        hit = np.nonzero(self.frame_indices == frame_index)[0]
-        return None if len(hit) == 0 else self.poses[hit[0]]
+        k = self.index_of_frame(frame_index)
+        return None if k is None else self.poses[k]
 
 
 def box_corners(pose: np.ndarray, size: np.ndarray) -> np.ndarray:

@@ -74,7 +74,9 @@ class LPIPS(nn.Module):
             model.features.load_state_dict({k: v for k, v in feats.items() if int(k.split(".")[0]) < model.ends[-1]})
         except RuntimeError as err:
             raise IDSplatError(f"{backbone}: not torchvision {net} weights ({str(err).splitlines()[0]})") from None
-        lin_path = linear or default_linear_weights(net)
+        lin_path = Path(linear or default_linear_weights(net))
+        if not lin_path.is_file():
+            raise IDSplatError(f"{lin_path}: LPIPS calibration weights not found; reinstall lpips==0.1.4 (it ships them)")
         lin_state = torch.load(lin_path, map_location="cpu", weights_only=True)
         for i, lin in enumerate(model.lins):
             lin.weight.copy_(lin_state[f"lin{i}.model.1.weight"])

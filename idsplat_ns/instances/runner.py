@@ -1,11 +1,11 @@
 """The preprocessing runner: masks -> point painting -> features -> registration -> static
 conversion -> smoothing, each stage cached atomically by its inputs and settings, with a timing
-table by stage like the paper's Table 13. Used by ``idsplat-preprocess`` and the datamanager.
+table by stage like the paper's Table 13. Used by ``idsplat-preprocess`` (and, with issue 7's
+instance model, by the datamanager).
 """
 
 from __future__ import annotations
 
-import importlib
 import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -17,6 +17,7 @@ from idsplat_ns.data.scene import Scene
 from idsplat_ns.errors import IDSplatError
 from idsplat_ns.instances.cache import atomic_path, hash_json, remove_stale_temporaries, scene_fingerprint
 from idsplat_ns.instances.features.base import PointFeatures
+from idsplat_ns.instances.smoothing import SmoothingConfig, smooth_trajectory
 from idsplat_ns.instances.features.config import FeatureConfig, make_feature_extractor, resolve_feature_kind
 from idsplat_ns.instances.lifting import LiftedInstances, LiftingConfig, lift_instances
 from idsplat_ns.instances.masks.base import InstanceMaskSet
@@ -26,9 +27,6 @@ from idsplat_ns.instances.masks.precomputed import load_mask_set
 from idsplat_ns.instances.static_conversion import StaticConversionConfig, convert_static_instances
 from idsplat_ns.instances.trajectory_estimation import TrajectoryConfig, estimate_trajectories
 from idsplat_ns.instances.tracks import InstanceTracks
-
-SMOOTHING_MODULE = "idsplat_ns.instances.smoothing"
-
 
 @dataclass(frozen=True)
 class PreprocessConfig:
@@ -46,8 +44,8 @@ class PreprocessConfig:
     """Registration (or the centroid ablation)."""
     static: StaticConversionConfig = field(default_factory=StaticConversionConfig)
     """Static conversion of barely moving instances."""
-    smoothing: bool = True
-    """Run the trajectory-smoothing stage (when its module is available)."""
+    smoothing: Optional[SmoothingConfig] = field(default_factory=SmoothingConfig)
+    """Coordinated-turn smoothing settings (paper defaults); None skips the stage."""
 
 
 @dataclass
@@ -96,12 +94,12 @@ def _cached_file(path: Path, compute: Callable[[], object], save: Callable[[obje
     return result, False
 
 
-def _smooth(tracks: InstanceTracks, smooth_trajectory) -> InstanceTracks:
+def _smooth(tracks: InstanceTracks, config: SmoothingConfig) -> InstanceTracks:
     """Replace each dynamic instance's poses by smoothed ones (valid within the measured span)."""
     out = []
     times = np.asarray(tracks.frame_times, np.float64)
     for inst in tracks.instances:
-        sm = smooth_trajectory(times, inst.poses, inst.valid)
+        sm = smooth_trajectory(times, inst.poses, inst.valid, config)
         lo, hi = sm.span
         out.append(replace(inst, poses=np.asarray(sm.poses), valid=(times >= lo) & (times <= hi), measured_valid=inst.valid))
     return replace(tracks, instances=out, metadata={**tracks.metadata, "smoothed": True})
@@ -196,26 +194,18 @@ def run_preprocessing(
     timings.append(StageTiming("static conversion", time.perf_counter() - t0, False,
                                f"{len(tracks.instances)} dynamic, {len(tracks.static_instances)} static"))
 
-    # 6. Smoothing: the hook for idsplat_ns.instances.smoothing.smooth_trajectory, when importable.
+    # 6. Coordinated-turn smoothing (Sec. 3.4).
     t0 = time.perf_counter()
-    if not config.smoothing:
+    if config.smoothing is None:
         timings.append(StageTiming("smoothing", 0.0, False, "skipped (disabled)"))
     else:
-        try:
-            smooth_trajectory = importlib.import_module(SMOOTHING_MODULE).smooth_trajectory
-        except (ImportError, AttributeError) as err:
-            smooth_trajectory = None
-            if verbose:
-                print(f"note: trajectory smoothing unavailable ({err}); the stage is skipped and poses stay unsmoothed")
-        if smooth_trajectory is None:
-            timings.append(StageTiming("smoothing", 0.0, False, "skipped (module unavailable)"))
-        else:
-            smooth_key = hash_json({"registration": reg_key, "static": asdict(config.static), "smoothing": "default"})
-            tracks, cached = _cached_file(
-                cache_dir / f"smoothing-{smooth_key}.npz",
-                lambda: _smooth(tracks, smooth_trajectory),
-                lambda r, p: r.save(p), InstanceTracks.load)
-            timings.append(StageTiming("smoothing", time.perf_counter() - t0, cached))
+        smooth_key = hash_json({"registration": reg_key, "static": asdict(config.static), "smoothing": asdict(config.smoothing)})
+        smoothing = config.smoothing
+        tracks, cached = _cached_file(
+            cache_dir / f"smoothing-{smooth_key}.npz",
+            lambda: _smooth(tracks, smoothing),
+            lambda r, p: r.save(p), InstanceTracks.load)
+        timings.append(StageTiming("smoothing", time.perf_counter() - t0, cached))
 
     tracks.metadata.update({"mask_source": masks.source, "features": extractor_name,
                             "trajectory_method": config.trajectory.method})

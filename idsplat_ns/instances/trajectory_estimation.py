@@ -37,8 +37,8 @@ class TrajectoryConfig:
 
 def _obs_features(features: PointFeatures, iid: int, obs: InstanceObservation) -> np.ndarray:
     f = features.features.get((iid, obs.frame))
-    if f is None:  # points that no image described (cannot happen for image features; be safe for geometry)
-        raise KeyError(f"no features for instance {iid} at frame {obs.frame}")
+    if f is None:  # every lifted observation is described by the extractors; anything else is a bug
+        raise ValueError(f"{features.extractor} gave no features for instance {iid} at frame {obs.frame}")
     return f
 
 
@@ -77,7 +77,8 @@ def estimate_instance_track(
             canon_pts.append(o.points - centre - shift)
             canon_cols.append(colours_of(o))
     else:
-        assert features is not None, "registration needs point features"
+        if features is None:
+            raise ValueError("registration needs point features (pass the extractor's output, or use method='centroid')")
         canon_feat = [_obs_features(features, iid, ref)]
         for o in order[1:]:
             result = register(np.concatenate(canon_pts), np.concatenate(canon_feat), o.points,

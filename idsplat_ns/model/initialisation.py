@@ -127,11 +127,13 @@ def initial_points_from_scene(
 ) -> InitialPoints:
     """Seed points for the static scene (all lidar points, or those not excluded) plus random points.
 
-    ``images`` restricts colouring to some images (e.g. the training split); ``exclude`` maps
-    (points [N, 3], times [N]) to a [N] bool of points to drop (e.g. those inside instances).
+    ``images`` restricts both the lidar sweeps and the colouring to the frames of those images
+    (the training split: held-out frames contribute nothing); ``exclude`` maps (points [N, 3],
+    times [N]) to a [N] bool of points to drop (e.g. those inside instances).
     """
     rng = np.random.default_rng(config.seed)
-    points, times = scene.all_lidar_points(max_points=config.max_lidar_points, seed=config.seed)
+    frames = None if images is None else {im.frame_index for im in images}
+    points, times = scene.all_lidar_points(max_points=config.max_lidar_points, seed=config.seed, frames=frames)
     if exclude is not None and len(points):
         keep = ~exclude(points, times)
         points, times = points[keep], times[keep]

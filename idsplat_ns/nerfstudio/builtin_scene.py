@@ -5,8 +5,6 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from idsplat_ns.errors import IDSplatError
-
 
 def cache_root() -> Path:
     """Where generated scenes are kept: ``$IDSPLAT_CACHE`` or ``~/.cache/idsplat_ns``."""
@@ -15,14 +13,12 @@ def cache_root() -> Path:
 
 def builtin_street(preset: str = "small", seed: int = 0) -> Path:
     """Path to the built-in street of ``preset``/``seed``, generating it the first time."""
-    from idsplat_ns.data.synthetic import generate_sequence
+    from idsplat_ns.data.synthetic import generate_sequence, get_preset, is_current, sequence_name
 
     parent = cache_root() / "synthetic"
+    if is_current(parent, preset, seed):
+        return parent / sequence_name(get_preset(preset), seed)
     parent.mkdir(parents=True, exist_ok=True)
-    try:
-        # Returns the cached folder when its generator record (version, settings, seed) matches.
-        return Path(generate_sequence(parent, preset=preset, seed=seed))
-    except IDSplatError:
-        # Made by another generator version: this cache is the project's own, so replace it
-        # (written to a temporary folder, then renamed). A bad preset raises again, as it should.
-        return Path(generate_sequence(parent, preset=preset, seed=seed, overwrite=True))
+    # Missing, or made by another generator version: this cache is the project's own, so it is
+    # (re)written, to a temporary folder first and then renamed.
+    return Path(generate_sequence(parent, preset=preset, seed=seed, overwrite=True))

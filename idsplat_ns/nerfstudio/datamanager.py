@@ -33,6 +33,12 @@ class IDSplatDataManager(FullImageDatamanager[IDSplatDataset]):
 
     config: IDSplatDataManagerConfig
 
+    def __init__(self, config: IDSplatDataManagerConfig, device="cpu", test_mode="val", **kwargs):
+        super().__init__(config, device=device, test_mode=test_mode, **kwargs)
+        # The model initialises Gaussians only for training ("val"); ns-eval and ns-viewer
+        # ("test"/"inference") load a checkpoint instead.
+        self.train_dataset.metadata["test_mode"] = test_mode
+
     @property
     def scene(self):
         return self.train_dataparser_outputs.metadata["scene"]

@@ -47,8 +47,9 @@ class IDSplatDataParserConfig(DataParserConfig):
     load_lidar: bool = True
     """Read lidar sweeps (initialisation; lidar supervision in the full model)."""
 
-    def load_scene(self) -> Scene:  # pragma: no cover - overridden
-        raise NotImplementedError
+    def load_scene(self) -> Scene:
+        """Parse the configured sequence; each dataset's config defines it."""
+        raise NotImplementedError(f"{type(self).__name__} must define load_scene (use a dataset's config)")
 
 
 @dataclass
@@ -86,7 +87,9 @@ class WaymoDataParserConfig(IDSplatDataParserConfig):
     context_name: Optional[str] = None
     """v2 only: the segment context name inside the v2 root given as data."""
     train_fraction: float = 0.75
-    """Fraction of frames used for training (paper's StreetGS/AD-GS protocol: 0.75)."""
+    """Fraction of frames used for training when eval_every is None."""
+    eval_every: Optional[int] = 4
+    """Hold out every 4th frame: the paper's AD-GS / SplatFlow protocols on Waymo (75% train)."""
 
     def load_scene(self) -> Scene:
         from idsplat_ns.data.waymo import load_segment
@@ -94,7 +97,10 @@ class WaymoDataParserConfig(IDSplatDataParserConfig):
         if self.data is None:
             raise IDSplatError("--data is required for idsplat-waymo: a segment-*.tfrecord file or a v2 root with --context-name")
         kwargs = {"context_name": self.context_name} if self.context_name else {}
-        return load_segment(self.data, cameras=list(self.cameras) if self.cameras else None, start=self.start_frame, end=self.end_frame, **kwargs)
+        return load_segment(
+            self.data, cameras=list(self.cameras) if self.cameras else None, start=self.start_frame,
+            end=self.end_frame, load_lidar=self.load_lidar, **kwargs,
+        )
 
 
 class IDSplatDataParser(DataParser):

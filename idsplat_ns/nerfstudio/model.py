@@ -79,15 +79,12 @@ class IDSplatModel(Model):
         metadata = self.kwargs.get("metadata", {})
         scene = metadata["scene"]
         self.camera_names: List[str] = list(metadata["camera_names"])
-        init_cfg = InitConfig(
-            max_lidar_points=self.config.max_lidar_points,
-            num_random_points=self.config.num_random_points,
-            points_per_lidar_point=self.config.random_points_per_lidar_point,
-            seed=self.config.init_seed,
-        )
-        init = initial_points_from_scene(scene, init_cfg, lambda im: load_rgb(im, 0.5), images=metadata["split_images"])
-        CONSOLE.print(f"IDSplat: {len(init.means)} initial Gaussians ({int(init.is_lidar.sum())} from lidar)")
-        self.gaussians = GaussianSet.from_points(init, self.config.feature_dim, seed=self.config.init_seed)
+        if metadata.get("test_mode", "val") == "val":
+            self.gaussians = self._initial_gaussians(scene, metadata["split_images"])
+        else:
+            # ns-eval / ns-viewer: a checkpoint is loaded next (load_state_dict resizes), so the
+            # initialisation (a KNN over millions of points at paper settings) would be wasted.
+            self.gaussians = GaussianSet(0, self.config.feature_dim)
         self.sensor_embedding = nn.Embedding(len(self.camera_names), self.config.sensor_embedding_dim)
         nn.init.zeros_(self.sensor_embedding.weight)
         self.rgb_decoder = RGBDecoderCNN(
@@ -97,6 +94,17 @@ class IDSplatModel(Model):
         self.background = nn.Parameter(torch.logit(torch.tensor(self.config.background_color).clamp(0.01, 0.99)))
         self.step = 0
         self._lpips = None
+
+    def _initial_gaussians(self, scene, train_images) -> GaussianSet:
+        init_cfg = InitConfig(
+            max_lidar_points=self.config.max_lidar_points,
+            num_random_points=self.config.num_random_points,
+            points_per_lidar_point=self.config.random_points_per_lidar_point,
+            seed=self.config.init_seed,
+        )
+        init = initial_points_from_scene(scene, init_cfg, lambda im: load_rgb(im, 0.5), images=train_images)
+        CONSOLE.print(f"IDSplat: {len(init.means)} initial Gaussians ({int(init.is_lidar.sum())} from lidar)")
+        return GaussianSet.from_points(init, self.config.feature_dim, opacity=init_cfg.initial_opacity, seed=self.config.init_seed)
 
     # --- training plumbing -------------------------------------------------------------------
     def get_training_callbacks(self, training_callback_attributes: TrainingCallbackAttributes) -> List[TrainingCallback]:
@@ -154,7 +162,8 @@ class IDSplatModel(Model):
         feats = torch.cat([g["colors"], g["features"]], dim=1)
         out = rasterize_camera(
             g["means"], g["quats"], g["scales"], g["opacities"], feats, viewmat, K, width, height,
-            instance_ids=self.gaussians.instance_ids,
+            # Per-instance maps cost a compositing channel each; the static model has none.
+            instance_ids=self.gaussians.instance_ids if bool((self.gaussians.instance_ids > 0).any()) else None,
         )
         alpha = out.alpha[0]
         background = torch.sigmoid(self.background)
@@ -168,7 +177,7 @@ class IDSplatModel(Model):
             "rgb": rgb,
             "depth": out.depth[0],
             "accumulation": alpha,
-            "instance_id": out.instance_id[0, ..., None].float(),
+            "instance_id": out.instance_id[0, ..., None].float(),  # -1 where nothing is rendered
             "background": background,
         }
 

@@ -11,7 +11,7 @@ from torch import Tensor
 
 from ..errors import IDSplatError
 from .projection import Projection, project_gaussians
-from .tile_composite import DEFAULT_CHUNK_ELEMS, TileComposite, plan_chunks
+from .tile_composite import DEFAULT_CHUNK_ELEMS, CompositePlan, TileComposite, pixel_basis, quadratic_coefficients
 from .tiles import intersect_tiles, tiles_to_image
 
 
@@ -148,11 +148,21 @@ def rasterize_projected(
         onehot = (slot[:, None] == torch.arange(k, device=device)[None, :]) & match[:, None]
         columns.append(onehot.to(dtype).repeat(cams, 1))
     feats = torch.cat(columns, dim=1)  # [C*N, D + 2 (+ K)]
-    chunks = plan_chunks(isects, chunk_elems)
-    pix, crossing = TileComposite.apply(
-        proj.means2d.reshape(-1, 2), proj.conics.reshape(-1, 3), opacities.repeat(cams), feats,
-        isects, chunks,
+    # Per intersection: the exponent's coefficients in the pixel offset from the tile centre.
+    b = tile_size
+    local = isects.tile_ids % (isects.tiles_x * isects.tiles_y)
+    cx = ((local % isects.tiles_x) * b).double() + 0.5 * b
+    cy = (torch.div(local, isects.tiles_x, rounding_mode="floor") * b).double() + 0.5 * b
+    m = proj.means2d.reshape(-1, 2)[gid]
+    f64 = torch.float64
+    coeffs = quadratic_coefficients(
+        m[:, 0].to(f64) - cx, m[:, 1].to(f64) - cy, proj.conics.reshape(-1, 3)[gid].to(f64), opacities.repeat(cams)[gid].to(f64)
     )  # fmt: skip
+    plan = CompositePlan(
+        tile_offsets=isects.tile_offsets, gaussian_ids=gid,
+        basis=pixel_basis(b, device, torch.float64), block_elems=chunk_elems,
+    )  # fmt: skip
+    pix, crossing = TileComposite.apply(coeffs, feats, plan)
     out = tiles_to_image(pix, isects, width, height)
     feats_img, depth_sum, alpha = out[..., :d], out[..., d : d + 1], out[..., d + 1 : d + 2]
     has = alpha > 0

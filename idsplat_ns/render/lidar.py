@@ -29,7 +29,9 @@ from torch import Tensor
 
 from ..errors import IDSplatError
 from .projection import covariance_3d
-from .tile_composite import DEFAULT_CHUNK_ELEMS, TileComposite, plan_chunks
+from .tile_composite import (
+    DEFAULT_CHUNK_ELEMS, CompositePlan, TileComposite, monomial_basis, quadratic_coefficients,
+)  # fmt: skip
 from .tiles import intersect_tiles
 
 
@@ -202,22 +204,33 @@ def rasterize_lidar(
     slot = torch.empty_like(order)
     slot[order] = torch.arange(order.numel(), device=device) - start[ray_tile[order]]
     slots = max(1, int(per_tile.max())) if per_tile.numel() else 1
-    isects.slot_x = torch.zeros(num_tiles, slots, device=device, dtype=dtype)
-    isects.slot_y = torch.zeros(num_tiles, slots, device=device, dtype=dtype)
-    isects.slot_valid = torch.zeros(num_tiles, slots, device=device, dtype=dtype)
-    isects.slot_x[ray_tile, slot] = ru + 0.0  # sample at the ray's own angles (no +0.5)
-    isects.slot_y[ray_tile, slot] = rv
-    isects.slot_valid[ray_tile, slot] = 1.0
-    isects.period_x = float(width)
+    # Sample offsets from the tile centre (0 for padding slots, which are masked out).
+    tile_local = torch.arange(num_tiles, device=device) % (tiles_x * tiles_y)
+    tile_cx = (tile_local % tiles_x).to(dtype) * tile_size + 0.5 * tile_size
+    tile_cy = torch.div(tile_local, tiles_x, rounding_mode="floor").to(dtype) * tile_size + 0.5 * tile_size
+    ex = torch.zeros(num_tiles, slots, device=device, dtype=dtype)
+    ey = torch.zeros(num_tiles, slots, device=device, dtype=dtype)
+    slot_valid = torch.zeros(num_tiles, slots, device=device, dtype=dtype)
+    ex[ray_tile, slot] = ru - tile_cx[ray_tile]  # sample at the ray's own angles (no +0.5)
+    ey[ray_tile, slot] = rv - tile_cy[ray_tile]
+    slot_valid[ray_tile, slot] = 1.0
 
     flat_range = proj.ranges.reshape(-1)
     feats = torch.cat(
         [features.repeat(k, 1), flat_range[:, None], torch.ones_like(flat_range[:, None])], dim=1
     )
-    pix, crossing = TileComposite.apply(
-        proj.means2d.reshape(-1, 2), proj.conics.reshape(-1, 3), opacities.repeat(k), feats,
-        isects, plan_chunks(isects, chunk_elems),
+    gid = isects.gaussian_ids
+    m = proj.means2d.reshape(-1, 2)[gid]
+    dxc = m[:, 0] - tile_cx[isects.tile_ids]
+    dxc = dxc - width * torch.round(dxc.detach() / width)  # azimuth wraps: nearest copy of the mean
+    coeffs = quadratic_coefficients(
+        dxc, m[:, 1] - tile_cy[isects.tile_ids], proj.conics.reshape(-1, 3)[gid], opacities.repeat(k)[gid]
     )  # fmt: skip
+    plan = CompositePlan(
+        tile_offsets=isects.tile_offsets, gaussian_ids=gid, basis=monomial_basis(ex, ey),
+        slot_valid=slot_valid, block_elems=chunk_elems,
+    )  # fmt: skip
+    pix, crossing = TileComposite.apply(coeffs, feats, plan)
     flat_slot = ray_tile * slots + slot
     out = pix[flat_slot]  # [R, D + 2]
     d = features.shape[1]

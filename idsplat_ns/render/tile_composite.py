@@ -1,243 +1,208 @@
-"""Fused tile compositing with a hand-written backward, in cache-sized chunks of tiles.
+"""Fused tile compositing with a hand-written backward, in blocks of depth ranks.
 
-Intersections (tile, Gaussian), sorted by tile and depth, are expanded to the ``B*B`` pixels of
-their tile: a ``[rows, B*B]`` block per chunk in which each tile's run of rows is one
-depth-ordered list per pixel column. Transmittance is a segmented cumulative sum of
-``log(1 - alpha)`` down the rows, in float64 (so that subtracting a segment's start loses nothing).
-Weights are summed into pixels by a sparse CSR product (pixel rows, Gaussian columns) that MKL
-runs directly on the features, so no ``[I, D]`` gather is needed in the forward pass.
+Each (tile, Gaussian) intersection carries the six coefficients of its exponent as a quadratic
+polynomial of the sample offset ``(ex, ey)`` from the tile centre:
 
-Work is done one chunk of whole tiles at a time (about ``chunk_elems`` alpha values), so every
-temporary stays in the CPU cache and memory is bounded: only alpha and transmittance per
-(intersection, pixel) are kept for the backward pass. Rules: :mod:`idsplat_ns.render.reference`.
+``-log(alpha_unclamped) = k0 + k1 ex + k2 ey + k3 ex^2 + k4 ex ey + k5 ey^2``
 
-Backward, for weights ``w_k = alpha_k T_k`` along one pixel's list with upstream ``g_k``:
-``dL/dalpha_k = g_k T_k - S_k / (1 - alpha_k)`` with ``S_k = sum_{m > k} g_m w_m`` (a reverse
-segmented sum), then the chain rule through ``alpha = o exp(-sigma)`` and the conic form.
+(:func:`quadratic_coefficients`; ``k0`` includes ``-log(opacity)``). The exponent of every
+(intersection, sample) pair is then one matrix product ``coeffs @ basis`` with the fixed
+``[6, S]`` monomial basis of the tile's samples, and the gradient of the coefficients is the
+product back, ``-(p @ basis^T)``. The coefficients are built with ordinary autograd ops on
+``[I, 6]`` tensors (1/S of the work), so only the per-sample loop is hand-written here.
+
+Tiles are processed together in blocks of depth ranks: block k holds rows ``[start, start + L)``
+of every tile that still has rows there, padded to ``L`` (a sentinel row with zero alpha), so a
+block is a dense ``[tiles, L, S]`` batch: transmittance is a plain ``cumsum`` of ``log(1 - alpha)``
+along L (float32; each block starts from the carried log-transmittance), features are summed by a
+batched matrix product. A tile whose samples have all reached ``T <= 1e-4`` (gsplat's early
+stop) leaves the loop, so the Gaussians behind saturated tiles are never evaluated. ``L`` adapts
+so that a block holds about ``block_elems`` values (temporaries stay in cache, memory is bounded).
+
+Backward, for weights ``w_k = alpha_k T_k`` along one sample's list with upstream ``g_k``:
+``dL/dalpha_k = g_k T_k - S_k / (1 - alpha_k)`` with ``S_k = sum_{m > k} g_m w_m``, computed block by
+block from the back with the suffix sum carried per sample. Rules: :mod:`idsplat_ns.render.reference`.
 """
 
 from __future__ import annotations
 
 import math
-import warnings
 from dataclasses import dataclass
-from typing import List, Tuple
+from typing import Optional
 
 import torch
 from torch import Tensor
 
 from .reference import ALPHA_MAX, ALPHA_MIN, TRANSMITTANCE_MIN
-from .tiles import TileIntersections
 
 _LOG_T_MIN = math.log(TRANSMITTANCE_MIN)
 _LOG_HALF = math.log(0.5)
-DEFAULT_CHUNK_ELEMS = 1 << 18  # alpha values per chunk: ~1 MiB float32 per temporary
+_T_CLAMP = -math.log(ALPHA_MAX)  # exponent at which alpha reaches the 0.999 clamp
+_T_SKIP = -math.log(ALPHA_MIN)  # exponent beyond which alpha < 1/255 is skipped
+_SENTINEL_EXPONENT = 1e30  # padding rows: alpha = 0
+DEFAULT_BLOCK_ELEMS = 1 << 19  # (row, sample) values per block: 2 MiB float32 per temporary
+DEFAULT_CHUNK_ELEMS = DEFAULT_BLOCK_ELEMS  # former name, kept for callers
 
 
-def _csr(crow: Tensor, col: Tensor, values: Tensor, shape) -> Tensor:
-    with warnings.catch_warnings():  # "sparse CSR support is in beta": known, not actionable
-        warnings.simplefilter("ignore", UserWarning)
-        return torch.sparse_csr_tensor(crow, col, values, size=shape, check_invariants=False)
+def monomial_basis(ex: Tensor, ey: Tensor) -> Tensor:
+    """``[..., 6, S]`` rows (1, ex, ey, ex^2, ex ey, ey^2) of sample offsets ``ex, ey`` [..., S]."""
+    return torch.stack([torch.ones_like(ex), ex, ey, ex * ex, ex * ey, ey * ey], dim=-2)
+
+
+def pixel_basis(tile_size: int, device, dtype) -> Tensor:
+    """Basis [6, B*B] of the pixel centres of a tile (row-major), relative to the tile centre."""
+    j = torch.arange(tile_size * tile_size, device=device)
+    half = 0.5 * tile_size
+    ex = (j % tile_size).to(dtype) + 0.5 - half
+    ey = torch.div(j, tile_size, rounding_mode="floor").to(dtype) + 0.5 - half
+    return monomial_basis(ex, ey)
+
+
+def quadratic_coefficients(
+    dxc: Tensor,  # [I] mean minus tile centre, x
+    dyc: Tensor,  # [I] mean minus tile centre, y
+    conics: Tensor,  # [I, 3] (a, b, c)
+    opacities: Tensor,  # [I]
+) -> Tensor:
+    """Coefficients [I, 6] of ``sigma - log(opacity)`` in the sample offset (see module doc).
+
+    ``sigma = 0.5 a dx^2 + b dx dy + 0.5 c dy^2`` with ``dx = dxc - ex``, ``dy = dyc - ey``.
+    Differentiable (plain autograd ops).
+    """
+    a, b, c = conics.unbind(-1)
+    log_o = torch.log(opacities.clamp_min(1e-30))
+    adx = a * dxc
+    cdy = c * dyc
+    k0 = 0.5 * (adx * dxc + cdy * dyc) + b * dxc * dyc - log_o
+    return torch.stack([k0, -(adx + b * dyc), -(cdy + b * dxc), 0.5 * a, b, 0.5 * c], dim=-1)
 
 
 @dataclass
-class _Chunk:
-    """Rows [r0, r1) covering whole tiles [t0, t1), with chunk-local index tensors."""
+class CompositePlan:
+    """What :class:`TileComposite` needs besides the differentiable inputs."""
 
-    r0: int
-    r1: int
-    t0: int
-    t1: int
-    seg_start: Tensor  # [n] chunk-local first row of each row's tile
-    seg_last: Tensor  # [n] chunk-local last row of each row's tile
-    tile_local: Tensor  # [n] tile index - t0
-    x0: Tensor  # [n] tile left edge (pixels)
-    y0: Tensor  # [n] tile top edge (pixels)
+    tile_offsets: Tensor  # [T + 1] int64 start of each tile's depth-sorted run of intersections
+    gaussian_ids: Tensor  # [I] int64 row of ``feats`` for each intersection
+    basis: Tensor  # [6, S] shared by all tiles, or [T, 6, S] per tile (irregular samples)
+    slot_valid: Optional[Tensor] = None  # [T, S] float 1/0, 0 for padding samples (lidar)
+    block_elems: int = DEFAULT_BLOCK_ELEMS  # target (row, sample) values per block
 
+    @property
+    def num_tiles(self) -> int:
+        return self.tile_offsets.numel() - 1
 
-def plan_chunks(isects: TileIntersections, chunk_elems: int = DEFAULT_CHUNK_ELEMS) -> List[_Chunk]:
-    """Split the sorted intersections into runs of whole tiles of about ``chunk_elems`` values."""
-    b = isects.tile_size
-    rows_per_chunk = max(1, chunk_elems // isects.slots_per_tile)
-    offsets = isects.tile_offsets
-    total = int(offsets[-1])
-    if total == 0:
-        return []
-    # Tile boundaries closest below multiples of rows_per_chunk (a tile larger than a chunk is
-    # a chunk of its own).
-    cuts = {0, offsets.numel() - 1}
-    if total > rows_per_chunk:
-        targets = torch.arange(rows_per_chunk, total, rows_per_chunk, device=offsets.device)
-        cuts.update((torch.searchsorted(offsets, targets, right=True) - 1).tolist())
-    cuts = sorted(cuts)
-    local = isects.tile_ids % (isects.tiles_x * isects.tiles_y)
-    x0_all = ((local % isects.tiles_x) * b).float()
-    y0_all = (torch.div(local, isects.tiles_x, rounding_mode="floor") * b).float()
-    chunks = []
-    offs = offsets.tolist()
-    for t0, t1 in zip(cuts[:-1], cuts[1:]):
-        r0, r1 = offs[t0], offs[t1]
-        if r1 == r0:
-            continue
-        tid = isects.tile_ids[r0:r1]
-        chunks.append(
-            _Chunk(
-                r0=r0, r1=r1, t0=t0, t1=t1,
-                seg_start=offsets[tid] - r0, seg_last=offsets[tid + 1] - 1 - r0,
-                tile_local=tid - t0, x0=x0_all[r0:r1], y0=y0_all[r0:r1],
-            )
-        )  # fmt: skip
-    return chunks
+    @property
+    def slots(self) -> int:
+        return self.basis.shape[-1]
 
 
-def _offsets(b: int, device, dtype) -> Tuple[Tensor, Tensor]:
-    j = torch.arange(b * b, device=device)
-    return (j % b).to(dtype) + 0.5, torch.div(j, b, rounding_mode="floor").to(dtype) + 0.5
+@dataclass
+class _Block:
+    tiles: Tensor  # [Ta] tile indices
+    rows: Tensor  # [Ta, L] intersection rows (I = sentinel)
+    alpha: Tensor  # [Ta, L, S]
+    trans: Tensor  # [Ta, L, S] transmittance before the row (0 once dropped)
 
 
-def _deltas(ch: _Chunk, gid: Tensor, means2d: Tensor, ox: Tensor, oy: Tensor, isects):
-    """Mean minus sample position, [n, S] each (x wrapped when the grid is periodic)."""
-    m = means2d[gid]
-    if isects.slot_x is None:
-        dx = (m[:, 0] - ch.x0.to(m.dtype))[:, None] - ox[None, :]
-        dy = (m[:, 1] - ch.y0.to(m.dtype))[:, None] - oy[None, :]
-        return dx, dy
-    tiles = ch.tile_local + ch.t0
-    dx = m[:, 0:1] - isects.slot_x[tiles].to(m.dtype)
-    dy = m[:, 1:2] - isects.slot_y[tiles].to(m.dtype)
-    if isects.period_x is not None:
-        period = isects.period_x
-        dx = dx - period * torch.round(dx / period)
-    return dx, dy
-
-
-def _sigma(dx: Tensor, dy: Tensor, con: Tensor) -> Tensor:
-    sig = dx * dx
-    sig.mul_(0.5 * con[:, 0:1])
-    tmp = dy * dy
-    sig.addcmul_(tmp, 0.5 * con[:, 2:3])
-    torch.mul(dx, dy, out=tmp)
-    sig.addcmul_(tmp, con[:, 1:2])
-    return sig
-
-
-def _pixel_csr(ch: _Chunk, counts: Tensor, bb: int, values: Tensor, cols: Tensor):
-    """CSR (rows = the chunk's tile pixels, entries in depth order) of [n, bb] values."""
-    n = ch.r1 - ch.r0
-    device = values.device
-    j = torch.arange(bb, device=device)
-    cnt = counts[ch.t0 : ch.t1]
-    start = torch.cumsum(cnt, 0) - cnt
-    crow = torch.empty((ch.t1 - ch.t0) * bb + 1, dtype=torch.int64, device=device)
-    crow[:-1] = (bb * start[:, None] + j[None, :] * cnt[:, None]).reshape(-1)
-    crow[-1] = n * bb
-    rows = torch.arange(n, device=device)
-    pos = (bb * ch.seg_start + (rows - ch.seg_start))[:, None] + j[None, :] * cnt[ch.tile_local][:, None]
-    pos = pos.reshape(-1)
-    vals = torch.empty(n * bb, dtype=values.dtype, device=device).scatter_(0, pos, values.reshape(-1))
-    col = torch.empty(n * bb, dtype=torch.int64, device=device).scatter_(
-        0, pos, cols[:, None].expand(n, bb).reshape(-1)
-    )
-    return crow, col, vals, pos
+def _exponents(coeffs: Tensor, basis: Tensor, tiles: Tensor, out_dtype) -> Tensor:  # coeffs: [Ta, L, 6]
+    if basis.dim() == 2:
+        ta, lb, _ = coeffs.shape
+        return (coeffs.reshape(-1, 6) @ basis).reshape(ta, lb, basis.shape[1]).to(out_dtype)
+    return torch.bmm(coeffs, basis[tiles]).to(out_dtype)
 
 
 class TileComposite(torch.autograd.Function):
-    """Composite all tiles; returns (pixel sums [T*B*B, D'], crossing counts [T, B*B])."""
+    """Composite all tiles; returns (sample sums [T*S, D], crossing counts [T, S]).
+
+    Inputs: ``coeffs`` [I, 6] (from :func:`quadratic_coefficients`, in the plan's intersection
+    order), ``feats`` [G, D] (indexed by ``plan.gaussian_ids``) and the :class:`CompositePlan`.
+    ``crossing`` counts, per sample, the rows after which ``T > 0.5`` still holds (the index of
+    the median Gaussian in the tile's run when it is smaller than the run length).
+    """
 
     @staticmethod
-    def forward(ctx, means2d, conics, opacities, feats, isects, chunks):
-        # means2d: [G, 2]; conics: [G, 3]; opacities: [G]; feats: [G, D'] (G = C*N)
-        b = isects.tile_size
-        bb = isects.slots_per_tile
-        device, dtype = means2d.device, means2d.dtype
-        n_isect = isects.gaussian_ids.numel()
-        out = torch.zeros(isects.num_tiles * bb, feats.shape[1], device=device, dtype=dtype)
-        crossing = torch.zeros(isects.num_tiles, bb, device=device, dtype=torch.int64)
-        alpha_all = torch.empty(n_isect, bb, device=device, dtype=dtype)
-        trans_all = torch.empty(n_isect, bb, device=device, dtype=dtype)
-        counts = isects.tile_offsets[1:] - isects.tile_offsets[:-1]
-        ox, oy = _offsets(b, device, dtype)
-        for ch in chunks:
-            gid = isects.gaussian_ids[ch.r0 : ch.r1]
-            dx, dy = _deltas(ch, gid, means2d, ox, oy, isects)
-            sig = _sigma(dx, dy, conics[gid])
-            alpha = sig.clamp_min_(0.0).neg_().exp_().mul_(opacities[gid][:, None])
-            alpha.clamp_max_(ALPHA_MAX)
-            alpha.masked_fill_(alpha < ALPHA_MIN, 0.0)
-            if isects.slot_valid is not None:  # padding slots of irregular (lidar) tiles
-                alpha.mul_(isects.slot_valid[ch.tile_local + ch.t0])
-            log_t = torch.log1p(-alpha)
-            cum = torch.cumsum(log_t, 0, dtype=torch.float64)
-            cum_pad = torch.cat([cum.new_zeros(1, bb), cum])
-            incl = cum.sub_(cum_pad[ch.seg_start])  # log T after this Gaussian
-            cross = incl > _LOG_HALF
-            crossing[ch.t0 : ch.t1].index_add_(0, ch.tile_local, cross.to(torch.int64))
+    def forward(ctx, coeffs, feats, plan: CompositePlan):
+        device, dtype = feats.device, feats.dtype
+        n_tiles, slots, n_isect, d = plan.num_tiles, plan.slots, coeffs.shape[0], feats.shape[1]
+        out = torch.zeros(n_tiles, slots, d, device=device, dtype=dtype)
+        crossing = torch.zeros(n_tiles, slots, device=device, dtype=torch.int64)
+        blocks = []
+        sentinel = torch.zeros(1, 6, device=device, dtype=coeffs.dtype)
+        sentinel[0, 0] = _SENTINEL_EXPONENT
+        coeffs_ext = torch.cat([coeffs.detach(), sentinel])
+        gid_ext = torch.cat([plan.gaussian_ids, plan.gaussian_ids.new_zeros(1)])
+        offsets = plan.tile_offsets
+        counts = offsets[1:] - offsets[:-1]
+        tiles = torch.nonzero(counts > 0).squeeze(1)
+        carry = torch.zeros(tiles.numel(), slots, device=device, dtype=dtype)  # log T so far
+        ranks = torch.arange(max(1, int(counts.max())) if n_tiles else 1, device=device)
+        start = 0
+        while tiles.numel() > 0:
+            ta = tiles.numel()
+            left = counts[tiles] - start
+            lb = min(max(8, plan.block_elems // (ta * slots)), int(left.max()))
+            rows = offsets[tiles][:, None] + start + ranks[None, :lb]
+            rows = torch.where(ranks[None, :lb] < left[:, None], rows, n_isect)
+            t = _exponents(coeffs_ext[rows], plan.basis, tiles, dtype)  # -log alpha, [Ta, L, S]
+            t.clamp_min_(_T_CLAMP)
+            t.masked_fill_(t > _T_SKIP, math.inf)
+            alpha = t.neg_().exp_()
+            if plan.slot_valid is not None:
+                alpha.mul_(plan.slot_valid[tiles][:, None, :])
+            log_t = torch.log1p(alpha.neg())
+            first = log_t[:, 0, :].clone()
+            log_t[:, 0, :] += carry
+            incl = torch.cumsum(log_t, 1)  # log T after each row
+            log_t[:, 0, :] = first
+            crossing.index_add_(0, tiles, (incl > _LOG_HALF).sum(1))
+            carry = incl[:, -1, :].clone()
             alive = incl > _LOG_T_MIN
-            trans = incl.sub_(log_t).exp_().to(dtype).mul_(alive)
+            trans = incl.sub_(log_t).exp_().mul_(alive)
             w = alpha * trans
-            crow, col, vals, _ = _pixel_csr(ch, counts, bb, w, gid)
-            mat = _csr(crow, col, vals, ((ch.t1 - ch.t0) * bb, feats.shape[0]))
-            out[ch.t0 * bb : ch.t1 * bb] = mat @ feats
-            alpha_all[ch.r0 : ch.r1] = alpha
-            trans_all[ch.r0 : ch.r1] = trans
-        ctx.isects, ctx.chunks = isects, chunks
-        ctx.save_for_backward(means2d, conics, opacities, feats, alpha_all, trans_all)
+            out.index_add_(0, tiles, torch.bmm(w.transpose(1, 2), feats[gid_ext[rows]]))
+            blocks.append(_Block(tiles=tiles, rows=rows, alpha=alpha, trans=trans))
+            start += lb
+            live = carry > _LOG_T_MIN
+            if plan.slot_valid is not None:
+                live &= plan.slot_valid[tiles] > 0
+            keep = (left > lb) & live.any(1)
+            tiles, carry = tiles[keep], carry[keep]
+        ctx.plan, ctx.blocks, ctx.n_isect = plan, blocks, n_isect
+        ctx.save_for_backward(feats)
         ctx.mark_non_differentiable(crossing)
-        return out, crossing
+        return out.reshape(n_tiles * slots, d), crossing
 
     @staticmethod
     def backward(ctx, grad_out, _grad_crossing):
-        means2d, conics, opacities, feats, alpha_all, trans_all = ctx.saved_tensors
-        isects: TileIntersections = ctx.isects
-        b = isects.tile_size
-        bb = isects.slots_per_tile
-        device, dtype = means2d.device, means2d.dtype
-        grad_out = grad_out.contiguous()
-        g_means = torch.zeros_like(means2d)
-        g_conics = torch.zeros_like(conics)
-        g_opac = torch.zeros_like(opacities)
+        (feats,) = ctx.saved_tensors
+        plan: CompositePlan = ctx.plan
+        n_isect, slots, d = ctx.n_isect, plan.slots, feats.shape[1]
+        device, dtype = feats.device, feats.dtype
+        g_pix_all = grad_out.reshape(plan.num_tiles, slots, d)
+        g_coeffs = torch.zeros(n_isect + 1, 6, device=device, dtype=plan.basis.dtype)
         g_feats = torch.zeros_like(feats)
-        counts = isects.tile_offsets[1:] - isects.tile_offsets[:-1]
-        ox, oy = _offsets(b, device, dtype)
-        j = torch.arange(bb, device=device)
-        for ch in ctx.chunks:
-            n = ch.r1 - ch.r0
-            gid = isects.gaussian_ids[ch.r0 : ch.r1]
-            alpha = alpha_all[ch.r0 : ch.r1]
-            trans = trans_all[ch.r0 : ch.r1]
+        gid_ext = torch.cat([plan.gaussian_ids, plan.gaussian_ids.new_zeros(1)])
+        suffix = torch.zeros(plan.num_tiles, slots, device=device, dtype=torch.float64)  # sum g w behind
+        alpha_cl = ALPHA_MAX * (1.0 - 1e-6)  # below any rounding of the clamped value
+        for blk in reversed(ctx.blocks):
+            tiles, rows, alpha, trans = blk.tiles, blk.rows, blk.alpha, blk.trans
+            g_pix = g_pix_all[tiles]  # [Ta, S, D]
+            gid = gid_ext[rows]
+            grad_w = torch.bmm(feats[gid], g_pix.transpose(1, 2))  # [Ta, L, S]
             w = alpha * trans
-            g_pix = grad_out[ch.t0 * bb : ch.t1 * bb]
-            # dL/dw: per entry dot(g_pix[pixel], feats[gid]) on the CSR pattern, back to [n, bb].
-            crow, col, vals, pos = _pixel_csr(ch, counts, bb, w, gid)
-            shape = ((ch.t1 - ch.t0) * bb, feats.shape[0])
-            pattern = _csr(crow, col, torch.zeros_like(vals), shape)
-            sampled = torch.sparse.sampled_addmm(pattern, g_pix, feats.t(), beta=0.0)
-            grad_w = sampled.values()[pos].reshape(n, bb)
-            if ctx.needs_input_grad[3]:
-                # dL/dfeats[g] = sum over its entries of w * g_pix: natural (row-major) CSR.
-                crow_t = torch.arange(n + 1, device=device) * bb
-                col_t = (ch.tile_local[:, None] * bb + j[None, :]).reshape(-1)
-                mat_t = _csr(crow_t, col_t, w.reshape(-1), (n, shape[0]))
-                g_feats.index_add_(0, gid, mat_t @ g_pix)
-            gw = (grad_w * w).double()
-            cum = gw.cumsum_(0)
-            suffix = cum[ch.seg_last].sub_(cum)  # sum of g*w strictly behind each row
-            active = (alpha > 0) & (alpha < ALPHA_MAX) & (trans > 0)
-            d_alpha = suffix.div_((1.0 - alpha).double()).to(dtype).neg_().addcmul_(grad_w, trans)
-            d_alpha.mul_(active)
-            # alpha = o exp(-sigma): p = dL/dalpha * alpha; dL/dsigma = -p; dL/do = sum p / o.
-            p = d_alpha.mul_(alpha)
-            op = opacities[gid]
-            g_opac.index_add_(0, gid, p.sum(1) / op.clamp_min(1e-30))
-            dx, dy = _deltas(ch, gid, means2d, ox, oy, isects)
-            q_dx = p * dx
-            q_dy = p * dy
-            s_x, s_y = q_dx.sum(1), q_dy.sum(1)
-            s_xx, s_xy, s_yy = (q_dx * dx).sum(1), (q_dx * dy).sum(1), (q_dy * dy).sum(1)
-            con = conics[gid]
-            a_, b_, c_ = con.unbind(1)
-            gm = torch.stack([-(a_ * s_x + b_ * s_y), -(b_ * s_x + c_ * s_y)], 1)
-            gc = torch.stack([-0.5 * s_xx, -s_xy, -0.5 * s_yy], 1)
-            g_means.index_add_(0, gid, gm)
-            g_conics.index_add_(0, gid, gc)
-        return g_means, g_conics, g_opac, g_feats, None, None
+            if ctx.needs_input_grad[1]:
+                g_feats.index_add_(0, gid.reshape(-1), torch.bmm(w, g_pix).reshape(-1, d))
+            cum = torch.cumsum(w.mul_(grad_w).double(), 1)
+            total = cum[:, -1, :] + suffix[tiles]
+            suffix[tiles] = total
+            behind = torch.sub(total[:, None, :], cum, out=cum)  # S_k
+            behind = behind.div_(torch.rsub(alpha, 1.0)).to(dtype)
+            p = grad_w.mul_(trans).sub_(behind).mul_(alpha)  # dL/dalpha * alpha
+            p.masked_fill_(alpha >= alpha_cl, 0.0)  # clamped alpha: no gradient
+            basis = plan.basis
+            if basis.dim() == 2:
+                r = p.reshape(-1, slots).to(basis.dtype) @ basis.t()
+            else:
+                r = torch.bmm(p.to(basis.dtype), basis[tiles].transpose(1, 2)).reshape(-1, 6)
+            g_coeffs[rows.reshape(-1)] = r.neg_()  # each real row occurs once; sentinel dropped
+        return g_coeffs[:n_isect], g_feats, None

@@ -13,9 +13,10 @@ from idsplat_ns.data.synthetic.config import (
     SyntheticConfig,
     get_preset,
 )
-from idsplat_ns.data.synthetic.generate import GENERATOR_VERSION, generate_sequence, sequence_name
+from idsplat_ns.data.synthetic.generate import GENERATOR_VERSION, generate_sequence, is_current, sequence_name
 
 __all__ = [
+    "is_current",
     "CAMERA_NAMES",
     "PRESETS",
     "CameraRigConfig",

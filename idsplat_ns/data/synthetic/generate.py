@@ -169,6 +169,20 @@ def _make_folders(tmp: Path) -> None:
         (tmp / sub).mkdir(parents=True, exist_ok=True)
 
 
+def _record_matches(record_path: Path, record: dict) -> bool:
+    try:
+        return json.loads(record_path.read_text()) == json.loads(json.dumps(record))
+    except (OSError, ValueError):
+        return False
+
+
+def is_current(out_dir: Path, preset: str | SyntheticConfig = "small", seed: int = 0) -> bool:
+    """Whether ``out_dir`` holds this preset/seed made by this generator version and settings."""
+    config = get_preset(preset)
+    final = Path(out_dir) / sequence_name(config, seed)
+    return _record_matches(final / "idsplat_extras" / "generator.json", generator_record(config, seed))
+
+
 def generate_sequence(
     out_dir: Path | str,
     preset: str | SyntheticConfig = "small",
@@ -195,11 +209,7 @@ def generate_sequence(
     record = generator_record(config, seed)
     record_path = final / "idsplat_extras" / "generator.json"
     if final.exists() and not overwrite:
-        try:
-            same = json.loads(record_path.read_text()) == json.loads(json.dumps(record))
-        except (OSError, ValueError):
-            same = False
-        if same:
+        if _record_matches(record_path, record):
             return final
         raise IDSplatError(f"{final} exists and was not made with these settings; remove it or pass --overwrite")
     tmp = out_dir / f".{final.name}.tmp-{os.getpid()}"
@@ -257,4 +267,4 @@ def _write_sequence_files(config: SyntheticConfig, seed: int, tmp: Path, frames:
     writer.write_json(tmp / "idsplat_extras" / "generator.json", record)
 
 
-__all__ = ["generate_sequence", "sequence_name", "vehicle_cuboids", "GENERATOR_VERSION"]
+__all__ = ["generate_sequence", "is_current", "sequence_name", "vehicle_cuboids", "GENERATOR_VERSION"]

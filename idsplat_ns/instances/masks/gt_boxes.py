@@ -16,12 +16,9 @@ from tqdm import tqdm
 
 from idsplat_ns.data.camera import CameraImage
 from idsplat_ns.data.scene import Scene
-from idsplat_ns.data.tracks import box_corners
+from idsplat_ns.data.dynamic_masks import box_silhouette
 from idsplat_ns.errors import IDSplatError
 from idsplat_ns.instances.masks.base import InstanceMaskSet, MaskSource, write_instance_map, write_labels
-
-_EDGES = [(a, b) for a in range(8) for b in range(a + 1, 8) if bin(a ^ b).count("1") == 1]  # 12 box edges
-
 
 @dataclass(frozen=True)
 class GtBoxMasksConfig:
@@ -33,25 +30,6 @@ class GtBoxMasksConfig:
     """Keep only tracks flagged as moving (Grounded-SAM-2 also sees parked objects, hence False)."""
     near_plane: float = 0.1
     """Metres: box parts closer to the camera than this are clipped away."""
-
-
-def box_silhouette(image: CameraImage, pose: np.ndarray, size: np.ndarray, near: float) -> np.ndarray | None:
-    """Pixel polygon [K, 2] (convex hull) of a box in an image, or None when it is behind the camera."""
-    corners = box_corners(pose, size)
-    cam = (corners - image.camera_to_world[:3, 3]) @ image.camera_to_world[:3, :3]
-    front = cam[:, 2] > near
-    if not front.any():
-        return None
-    pts = [cam[front]]
-    for a, b in _EDGES:  # where an edge crosses the near plane, keep the crossing point
-        if front[a] != front[b]:
-            w = (near - cam[a, 2]) / (cam[b, 2] - cam[a, 2])
-            pts.append((cam[a] + w * (cam[b] - cam[a]))[None])
-    cam_pts = np.concatenate(pts)
-    world = cam_pts @ image.camera_to_world[:3, :3].T + image.camera_to_world[:3, 3]
-    proj = image.project(world)
-    hull = cv2.convexHull(np.round(proj.uv).astype(np.int32))
-    return hull.reshape(-1, 2)
 
 
 def render_gt_box_masks(scene: Scene, image: CameraImage, track_ids: list[int], config: GtBoxMasksConfig) -> np.ndarray:

@@ -13,7 +13,6 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from idsplat_ns.errors import IDSplatError
 from idsplat_ns.instances.smoothing import factors as F
 from idsplat_ns.instances.smoothing.config import SmoothingConfig
 from idsplat_ns.instances.smoothing.ct_model import ct_delta_pose, rot_z, shared_rotation_pose
@@ -79,17 +78,17 @@ class SmoothedTrajectory:
 
 def _validate(times: np.ndarray, poses: np.ndarray, valid: np.ndarray) -> None:
     if times.ndim != 1 or len(times) == 0:
-        raise IDSplatError("smooth_trajectory: `times` must be a non-empty 1-D array of seconds")
+        raise ValueError("smooth_trajectory: `times` must be a non-empty 1-D array of seconds")
     if poses.shape != (len(times), 4, 4):
-        raise IDSplatError(f"smooth_trajectory: `poses` must have shape ({len(times)}, 4, 4), got {poses.shape}")
+        raise ValueError(f"smooth_trajectory: `poses` must have shape ({len(times)}, 4, 4), got {poses.shape}")
     if valid.shape != times.shape:
-        raise IDSplatError(f"smooth_trajectory: `valid` must have shape {times.shape}, got {valid.shape}")
+        raise ValueError(f"smooth_trajectory: `valid` must have shape {times.shape}, got {valid.shape}")
     if not np.all(np.isfinite(times)) or np.any(np.diff(times) <= 0.0):
-        raise IDSplatError("smooth_trajectory: `times` must be finite and strictly increasing; merge duplicate timestamps first")
+        raise ValueError("smooth_trajectory: `times` must be finite and strictly increasing; merge duplicate timestamps first")
     if not valid.any():
-        raise IDSplatError("smooth_trajectory: no valid measurement; an instance needs at least one pose")
+        raise ValueError("smooth_trajectory: no valid measurement; an instance needs at least one pose")
     if not np.all(np.isfinite(poses[valid])):
-        raise IDSplatError("smooth_trajectory: a valid pose has NaN/inf entries; mark it invalid")
+        raise ValueError("smooth_trajectory: a valid pose has NaN/inf entries; mark it invalid")
 
 
 def _running_median(values: np.ndarray, half_width: int) -> np.ndarray:  # values: [M] or [M, D]
@@ -207,7 +206,7 @@ def smooth_trajectory(
     Returns smoothed poses at every step (also where measurements are missing, extrapolated by the
     motion model before the first and after the last measurement), speeds, curvatures, the shared
     rotation, the mask of measurements kept as inliers, and ``pose_at`` for any time in the span
-    of the measurements. Raises :class:`IDSplatError` on malformed input.
+    of the measurements. Raises ValueError on malformed input (a programming error, not user input).
     """
     config = config or SmoothingConfig()
     times = np.asarray(times, dtype=np.float64)
