@@ -11,6 +11,7 @@ import pytest
 
 from idsplat_ns.instances.smoothing import factors as F
 from idsplat_ns.instances.smoothing.config import SmoothingConfig
+from idsplat_ns.data.geometry import rot_z, so3_exp, so3_log
 from idsplat_ns.instances.smoothing.ct_model import (
     ct_delta_pose,
     ct_increment,
@@ -18,9 +19,6 @@ from idsplat_ns.instances.smoothing.ct_model import (
     ct_propagate,
     motion_residual,
     roll_pitch,
-    rot_z,
-    so3_exp,
-    so3_log,
     so3_right_jacobian_inv,
     tilt_residual,
 )

@@ -20,7 +20,7 @@ from idsplat_ns.instances.masks.gt_boxes import GtBoxMasksConfig, GtBoxMaskSourc
 from idsplat_ns.instances.masks.precomputed import PrecomputedMasksConfig, PrecomputedMaskSource, load_mask_set
 from idsplat_ns.instances.registration import RegistrationConfig
 from idsplat_ns.instances.static_conversion import convert_static_instances
-from idsplat_ns.instances.track_errors import summarise_errors
+from idsplat_ns.eval.instance_pose_errors import summarise_errors
 from idsplat_ns.instances.trajectory_estimation import TrajectoryConfig, estimate_trajectories
 from idsplat_ns.instances.tracks import InstanceTracks
 

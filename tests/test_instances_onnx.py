@@ -9,7 +9,6 @@ import pytest
 from onnx import TensorProto, helper, numpy_helper
 
 from idsplat_ns.data.camera import CameraImage, Intrinsics
-from idsplat_ns.data.geometry import make_pose
 from idsplat_ns.data.lidar import LidarSweep
 from idsplat_ns.data.scene import Scene
 from idsplat_ns.errors import IDSplatError

@@ -7,7 +7,6 @@ import os
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +20,7 @@ from idsplat_ns.instances.masks.config import MaskConfig
 from idsplat_ns.instances.masks.perturb import MaskNoiseConfig
 from idsplat_ns.instances.masks.precomputed import PrecomputedMasksConfig
 from idsplat_ns.instances.runner import PreprocessConfig, run_preprocessing
-from idsplat_ns.instances.track_errors import summarise_errors
+from idsplat_ns.eval.instance_pose_errors import summarise_errors
 from idsplat_ns.instances.tracks import InstanceTracks
 from idsplat_ns.instances.trajectory_estimation import TrajectoryConfig
 

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from idsplat_ns.instances.smoothing import SmoothedTrajectory, SmoothingConfig, smooth_trajectory
-from idsplat_ns.instances.smoothing.ct_model import ct_delta_pose, rot_z, so3_exp, so3_log
+from idsplat_ns.data.geometry import rot_z, so3_exp, so3_log
+from idsplat_ns.instances.smoothing.ct_model import ct_delta_pose
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 MOTION_SCENARIO = DATA / "waymo" / "motion_data_one_scenario.tfrecord"

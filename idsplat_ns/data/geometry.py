@@ -5,7 +5,12 @@ Quaternions are (w, x, y, z), scalar first, as in PandaSet's ``heading`` and gsp
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+
+# Below this rotation angle the SO(3) exponential and logarithm use their series forms.
+SO3_SMALL_ANGLE = 1e-6
 
 
 def quat_to_rotmat(q: np.ndarray) -> np.ndarray:
@@ -129,3 +134,41 @@ def interpolate_poses(times: np.ndarray, poses: np.ndarray, query: np.ndarray) -
     R = quat_to_rotmat(slerp_quat(q[idx], q[idx + 1], w))
     t = (1 - w)[:, None] * poses[idx, :3, 3] + w[:, None] * poses[idx + 1, :3, 3]
     return make_pose(R, t)
+
+
+def skew(w: np.ndarray) -> np.ndarray:  # w: [3] -> [3, 3]
+    """The cross-product matrix ``[w]x`` with ``[w]x @ u == cross(w, u)``."""
+    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+
+
+def so3_exp(w: np.ndarray) -> np.ndarray:  # w: [3] -> [3, 3]
+    """Rodrigues' formula, exact near zero through the series of its coefficients."""
+    theta2 = float(w @ w)
+    theta = math.sqrt(theta2)
+    if theta < SO3_SMALL_ANGLE:
+        a = 1.0 - theta2 / 6.0
+        b = 0.5 - theta2 / 24.0
+    else:
+        a = math.sin(theta) / theta
+        b = (1.0 - math.cos(theta)) / theta2
+    W = skew(w)
+    return np.eye(3) + a * W + b * (W @ W)
+
+
+def so3_log(R: np.ndarray) -> np.ndarray:  # R: [3, 3] -> [3]
+    """Rotation vector of ``R``; stable at zero and at pi."""
+    cos_theta = min(1.0, max(-1.0, 0.5 * (np.trace(R) - 1.0)))
+    v = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])  # = 2 sin(theta) axis
+    sin_theta = 0.5 * float(np.linalg.norm(v))
+    theta = math.atan2(sin_theta, cos_theta)
+    if theta < SO3_SMALL_ANGLE:
+        return 0.5 * v * (1.0 + theta * theta / 6.0)
+    if math.pi - theta < 1e-3:
+        # Near pi the antisymmetric part vanishes: take the axis from the symmetric part.
+        B = 0.5 * (R + R.T) - cos_theta * np.eye(3)  # = (1 - cos) axis axis^T
+        k = int(np.argmax(np.diag(B)))
+        axis = B[:, k] / math.sqrt(max(B[k, k], 1e-300))
+        if axis @ v < 0.0:
+            axis = -axis
+        return theta * axis / np.linalg.norm(axis)
+    return v * (theta / (2.0 * sin_theta))

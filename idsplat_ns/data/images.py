@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+from pathlib import Path
 from typing import Optional
 
 import numpy as np
@@ -67,15 +68,33 @@ def load_rgb(image: CameraImage, scale: float = 1.0) -> np.ndarray:
     return np.array(im, dtype=np.uint8)  # a writable copy (torch.from_numpy warns on read-only arrays)
 
 
+def read_instance_map(path: Path) -> np.ndarray:
+    """[H, W] uint16 instance IDs from a single-channel 16-bit PNG (0 = no object)."""
+    import cv2
+
+    ids = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if ids is None or ids.ndim != 2 or ids.dtype != np.uint16:
+        raise IDSplatError(f"{path}: not a single-channel uint16 PNG instance map; rewrite it as documented in docs/instances.md")
+    return ids
+
+
+def write_instance_map(path: Path, ids: np.ndarray) -> None:  # ids: [H, W] integer
+    """Write one instance-ID map as a lossless 16-bit PNG (creating the folder)."""
+    import cv2
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if ids.max(initial=0) > np.iinfo(np.uint16).max or ids.min(initial=0) < 0:
+        raise ValueError("instance IDs must fit in uint16")
+    if not cv2.imwrite(str(path), ids.astype(np.uint16)):
+        raise IDSplatError(f"{path}: could not write the instance map; check that the folder is writable")
+
+
 def load_instance_mask(image: CameraImage, scale: float = 1.0) -> Optional[np.ndarray]:
-    """The ground-truth uint16 instance-ID map [H, W] at ``scale`` (nearest), or None if there is none."""
+    """The ground-truth instance-ID map [H, W] (int64) at ``scale`` (nearest), or None if there is none."""
     if image.instance_mask_path is None:
         return None
-    try:
-        with Image.open(image.instance_mask_path) as im:
-            mask = np.asarray(im).astype(np.int64)
-    except (UnidentifiedImageError, OSError) as err:
-        raise IDSplatError(f"{image.instance_mask_path}: unreadable mask ({err.__class__.__name__}); regenerate it") from None
+    mask = read_instance_map(image.instance_mask_path).astype(np.int64)
     target = image.intrinsics.scaled(scale)
     if mask.shape != (target.height, target.width):
         rows = np.minimum((np.arange(target.height) + 0.5) * mask.shape[0] / target.height, mask.shape[0] - 1).astype(int)

@@ -96,12 +96,13 @@ def _positions(objects: FrameObjects, where: str) -> tuple[list[Hashable], np.nd
     return ids, xyz
 
 
-def _sort_key(frame: Hashable) -> tuple[int, object]:
+def frame_sort_key(frame: Hashable) -> tuple[int, object]:
+    """Order frames: numbers numerically first, then anything else by its string."""
     return (0, frame) if isinstance(frame, (int, float, np.integer, np.floating)) else (1, str(frame))
 
 
 def _clear_mot_one(gt: Track, pred: Track, threshold: float) -> TrackingMetrics:
-    frames = sorted(set(gt.keys()) | set(pred.keys()), key=_sort_key)
+    frames = sorted(set(gt.keys()) | set(pred.keys()), key=frame_sort_key)
     last_match: dict[Hashable, Hashable] = {}  # object id -> prediction id it was last matched to
     n_obj = n_pred = n_match = n_switch = n_fp = n_miss = 0
     total = 0.0

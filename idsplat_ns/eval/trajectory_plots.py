@@ -12,13 +12,13 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from idsplat_ns.errors import IDSplatError
-from idsplat_ns.eval.tracking import Track
+from idsplat_ns.eval.tracking import Track, frame_sort_key
 
 
 def tracks_by_id(frames: Track) -> dict[object, np.ndarray]:
     """Regroup ``{frame: {id: xyz}}`` into ``{id: positions [N, 2+]}`` in frame order."""
     out: dict[object, list[np.ndarray]] = {}
-    for frame in sorted(frames, key=lambda f: (0, f) if isinstance(f, (int, float, np.number)) else (1, str(f))):
+    for frame in sorted(frames, key=frame_sort_key):
         for obj, xyz in frames[frame].items():
             out.setdefault(obj, []).append(np.asarray(xyz, dtype=np.float64).reshape(-1))
     return {obj: np.stack(p) for obj, p in out.items()}

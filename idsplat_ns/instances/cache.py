@@ -103,3 +103,22 @@ def remove_stale_temporaries(cache_dir: Path) -> int:
             shutil.rmtree(p, ignore_errors=True) if p.is_dir() else p.unlink(missing_ok=True)
             removed += 1
     return removed
+
+
+META_KEY = "meta_json"
+
+
+def save_npz(path: Path, arrays: dict[str, np.ndarray], meta: dict, compress: bool = True) -> None:
+    """Write named arrays plus a JSON-able ``meta`` dict (stored as bytes under ``META_KEY``) to one .npz."""
+    payload = dict(arrays)
+    payload[META_KEY] = np.frombuffer(json.dumps(meta).encode(), np.uint8)
+    with open(path, "wb") as fh:
+        (np.savez_compressed if compress else np.savez)(fh, **payload)
+
+
+def load_npz(path: Path) -> tuple[dict[str, np.ndarray], dict]:
+    """Read a file written by :func:`save_npz`: its arrays (in memory) and its meta dict."""
+    with np.load(path) as data:
+        meta = json.loads(bytes(data[META_KEY]).decode())
+        arrays = {name: data[name] for name in data.files if name != META_KEY}
+    return arrays, meta

@@ -9,7 +9,6 @@ merged when they claim the same lidar points at the same frame and never meet in
 
 from __future__ import annotations
 
-import json
 from collections import Counter, defaultdict
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,6 +19,7 @@ from sklearn.cluster import DBSCAN
 from tqdm import tqdm
 
 from idsplat_ns.data.scene import Scene
+from idsplat_ns.instances.cache import load_npz, save_npz
 from idsplat_ns.instances.masks.base import InstanceMaskSet
 
 
@@ -75,22 +75,19 @@ class LiftedInstances:
                 arrays[f"{iid}_{o.frame}_points"] = o.points
                 arrays[f"{iid}_{o.frame}_image_ids"] = o.image_ids
                 arrays[f"{iid}_{o.frame}_uv"] = o.uv
-        arrays["index_json"] = np.frombuffer(json.dumps(index).encode(), np.uint8)
-        with open(path, "wb") as f:
-            np.savez_compressed(f, **arrays)
+        save_npz(path, arrays, index)
 
     @classmethod
     def load(cls, path: Path) -> "LiftedInstances":
-        with np.load(path) as data:
-            index = json.loads(bytes(data["index_json"]).decode())
-            labels, observations = {}, {}
-            for key, entry in index.items():
-                iid = int(key)
-                labels[iid] = entry["label"]
-                observations[iid] = [
-                    InstanceObservation(f, data[f"{iid}_{f}_points"], data[f"{iid}_{f}_image_ids"], data[f"{iid}_{f}_uv"])
-                    for f in entry["frames"]
-                ]
+        data, index = load_npz(path)
+        labels, observations = {}, {}
+        for key, entry in index.items():
+            iid = int(key)
+            labels[iid] = entry["label"]
+            observations[iid] = [
+                InstanceObservation(f, data[f"{iid}_{f}_points"], data[f"{iid}_{f}_image_ids"], data[f"{iid}_{f}_uv"])
+                for f in entry["frames"]
+            ]
         return cls(labels, observations)
 
 

@@ -17,6 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from idsplat_ns.data.geometry import make_pose, so3_exp
+
 
 @dataclass(frozen=True)
 class RegistrationConfig:
@@ -128,12 +130,6 @@ def _subsample(n: int, max_points: int, rng: np.random.Generator) -> np.ndarray:
     return np.sort(rng.choice(n, max_points, replace=False))
 
 
-def _make_transform(R: np.ndarray, t: np.ndarray) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = R, t
-    return T
-
-
 def _failure(reason: str, n_corr: int = 0, iterations: int = 0, fitness: float = 0.0) -> RegistrationResult:
     return RegistrationResult(np.eye(4), fitness, False, n_corr, 0, iterations, reason)
 
@@ -188,13 +184,7 @@ def icp_point_to_plane(
         b = np.sum(n * (q - p), 1)
         x, *_ = np.linalg.lstsq(A, b, rcond=None)
         w, v = x[:3], x[3:]
-        angle = np.linalg.norm(w)
-        if angle > 1e-12:
-            kx = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]]) / angle
-            dR = np.eye(3) + np.sin(angle) * kx + (1 - np.cos(angle)) * kx @ kx
-        else:
-            dR = np.eye(3)
-        step = _make_transform(dR, v)
+        step = make_pose(so3_exp(w), v)
         T = step @ T
         if np.linalg.norm(x) < 1e-6:
             break
@@ -289,14 +279,14 @@ def register(
 
     best_fit, best_T, best_inl = -1.0, np.eye(4), 0
     for R, t in zip(top_R, top_t):
-        T = _make_transform(R, t)
+        T = make_pose(R, t)
         for _ in range(config.refine_iterations):  # refit on all consistent correspondences
             moved = cs @ T[:3, :3].T + T[:3, 3]
             inl = np.sum((moved - ct) ** 2, 1) < thr2
             if inl.sum() < 3:
                 break
             R2, t2 = umeyama_rigid(cs[inl][None], ct[inl][None])
-            T = _make_transform(R2[0], t2[0])
+            T = make_pose(R2[0], t2[0])
         fit = registration_fitness(T, src, tgt, config.inlier_distance)
         if fit > best_fit:
             moved = cs @ T[:3, :3].T + T[:3, 3]

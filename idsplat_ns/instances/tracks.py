@@ -6,7 +6,6 @@ Conventions (../shared/DESIGN.md): instance IDs start at 1 (0 is the static back
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Optional
@@ -14,6 +13,7 @@ from typing import Optional
 import numpy as np
 
 from idsplat_ns.errors import IDSplatError
+from idsplat_ns.instances.cache import load_npz, save_npz
 
 
 @dataclass
@@ -96,9 +96,7 @@ class InstanceTracks:
                     arrays[f"{key}_colors"] = inst.canonical_colors
                 if inst.measured_valid is not None:
                     arrays[f"{key}_measured_valid"] = inst.measured_valid
-        arrays["index_json"] = np.frombuffer(json.dumps({"instances": index, "metadata": self.metadata}).encode(), np.uint8)
-        with open(path, "wb") as f:
-            np.savez_compressed(f, **arrays)
+        save_npz(path, arrays, {"instances": index, "metadata": self.metadata})
 
     @classmethod
     def load(cls, path: Path) -> "InstanceTracks":
@@ -106,21 +104,20 @@ class InstanceTracks:
         path = Path(path)
         if not path.is_file():
             raise IDSplatError(f"{path}: instance tracks file not found; run idsplat-preprocess first")
-        with np.load(path) as data:
-            meta = json.loads(bytes(data["index_json"]).decode())
-            out = cls(data["frame_indices"], data["frame_times"], [], [], meta["metadata"])
-            for entry in meta["instances"]:
-                key = f"i{entry['id']}"
-                inst = InstanceTrack(
-                    instance_id=entry["id"], label=entry["label"],
-                    canonical_points=data[f"{key}_points"],
-                    canonical_colors=data[f"{key}_colors"] if entry["has_colors"] else None,
-                    poses=data[f"{key}_poses"], valid=data[f"{key}_valid"],
-                    point_counts=data[f"{key}_counts"], fitness=data[f"{key}_fitness"],
-                    canonical_frame=entry["canonical_frame"],
-                    measured_valid=data[f"{key}_measured_valid"] if f"{key}_measured_valid" in data.files else None,
-                )
-                (out.instances if entry["group"] == "dynamic" else out.static_instances).append(inst)
+        data, meta = load_npz(path)
+        out = cls(data["frame_indices"], data["frame_times"], [], [], meta["metadata"])
+        for entry in meta["instances"]:
+            key = f"i{entry['id']}"
+            inst = InstanceTrack(
+                instance_id=entry["id"], label=entry["label"],
+                canonical_points=data[f"{key}_points"],
+                canonical_colors=data[f"{key}_colors"] if entry["has_colors"] else None,
+                poses=data[f"{key}_poses"], valid=data[f"{key}_valid"],
+                point_counts=data[f"{key}_counts"], fitness=data[f"{key}_fitness"],
+                canonical_frame=entry["canonical_frame"],
+                measured_valid=data.get(f"{key}_measured_valid"),
+            )
+            (out.instances if entry["group"] == "dynamic" else out.static_instances).append(inst)
         return out
 
 

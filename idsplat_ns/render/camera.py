@@ -154,9 +154,8 @@ def rasterize_projected(
     cx = ((local % isects.tiles_x) * b).double() + 0.5 * b
     cy = (torch.div(local, isects.tiles_x, rounding_mode="floor") * b).double() + 0.5 * b
     m = proj.means2d.reshape(-1, 2)[gid]
-    f64 = torch.float64
     coeffs = quadratic_coefficients(
-        m[:, 0].to(f64) - cx, m[:, 1].to(f64) - cy, proj.conics.reshape(-1, 3)[gid].to(f64), opacities.repeat(cams)[gid].to(f64)
+        m[:, 0].double() - cx, m[:, 1].double() - cy, proj.conics.reshape(-1, 3)[gid], opacities.repeat(cams)[gid]
     )  # fmt: skip
     plan = CompositePlan(
         tile_offsets=isects.tile_offsets, gaussian_ids=gid,

@@ -206,10 +206,11 @@ def rasterize_lidar(
     slots = max(1, int(per_tile.max())) if per_tile.numel() else 1
     # Sample offsets from the tile centre (0 for padding slots, which are masked out).
     tile_local = torch.arange(num_tiles, device=device) % (tiles_x * tiles_y)
-    tile_cx = (tile_local % tiles_x).to(dtype) * tile_size + 0.5 * tile_size
-    tile_cy = torch.div(tile_local, tiles_x, rounding_mode="floor").to(dtype) * tile_size + 0.5 * tile_size
-    ex = torch.zeros(num_tiles, slots, device=device, dtype=dtype)
-    ey = torch.zeros(num_tiles, slots, device=device, dtype=dtype)
+    f64 = torch.float64
+    tile_cx = (tile_local % tiles_x).to(f64) * tile_size + 0.5 * tile_size
+    tile_cy = torch.div(tile_local, tiles_x, rounding_mode="floor").to(f64) * tile_size + 0.5 * tile_size
+    ex = torch.zeros(num_tiles, slots, device=device, dtype=f64)
+    ey = torch.zeros(num_tiles, slots, device=device, dtype=f64)
     slot_valid = torch.zeros(num_tiles, slots, device=device, dtype=dtype)
     ex[ray_tile, slot] = ru - tile_cx[ray_tile]  # sample at the ray's own angles (no +0.5)
     ey[ray_tile, slot] = rv - tile_cy[ray_tile]
@@ -221,10 +222,10 @@ def rasterize_lidar(
     )
     gid = isects.gaussian_ids
     m = proj.means2d.reshape(-1, 2)[gid]
-    dxc = m[:, 0] - tile_cx[isects.tile_ids]
+    dxc = m[:, 0].to(f64) - tile_cx[isects.tile_ids]
     dxc = dxc - width * torch.round(dxc.detach() / width)  # azimuth wraps: nearest copy of the mean
     coeffs = quadratic_coefficients(
-        dxc, m[:, 1] - tile_cy[isects.tile_ids], proj.conics.reshape(-1, 3)[gid], opacities.repeat(k)[gid]
+        dxc, m[:, 1].to(f64) - tile_cy[isects.tile_ids], proj.conics.reshape(-1, 3)[gid], opacities.repeat(k)[gid]
     )  # fmt: skip
     plan = CompositePlan(
         tile_offsets=isects.tile_offsets, gaussian_ids=gid, basis=monomial_basis(ex, ey),

@@ -67,8 +67,11 @@ def quadratic_coefficients(
     """Coefficients [I, 6] of ``sigma - log(opacity)`` in the sample offset (see module doc).
 
     ``sigma = 0.5 a dx^2 + b dx dy + 0.5 c dy^2`` with ``dx = dxc - ex``, ``dy = dyc - ey``.
-    Differentiable (plain autograd ops).
+    Differentiable (plain autograd ops). Computed in float64: the polynomial's terms cancel
+    near the Gaussian's centre (``k0 ~ a dxc^2`` against ``k1 ex``), which float32 cannot afford.
     """
+    f64 = torch.float64
+    dxc, dyc, conics, opacities = dxc.to(f64), dyc.to(f64), conics.to(f64), opacities.to(f64)
     a, b, c = conics.unbind(-1)
     log_o = torch.log(opacities.clamp_min(1e-30))
     adx = a * dxc
@@ -83,7 +86,7 @@ class CompositePlan:
 
     tile_offsets: Tensor  # [T + 1] int64 start of each tile's depth-sorted run of intersections
     gaussian_ids: Tensor  # [I] int64 row of ``feats`` for each intersection
-    basis: Tensor  # [6, S] shared by all tiles, or [T, 6, S] per tile (irregular samples)
+    basis: Tensor  # [6, S] shared by all tiles, or [T, 6, S] per tile (irregular samples), float64
     slot_valid: Optional[Tensor] = None  # [T, S] float 1/0, 0 for padding samples (lidar)
     block_elems: int = DEFAULT_BLOCK_ELEMS  # target (row, sample) values per block
 
@@ -104,11 +107,11 @@ class _Block:
     trans: Tensor  # [Ta, L, S] transmittance before the row (0 once dropped)
 
 
-def _exponents(coeffs: Tensor, basis: Tensor, tiles: Tensor, out_dtype) -> Tensor:  # coeffs: [Ta, L, 6]
+def _exponents(coeffs: Tensor, basis: Tensor, tiles: Tensor) -> Tensor:  # coeffs: [Ta, L, 6]
     if basis.dim() == 2:
         ta, lb, _ = coeffs.shape
-        return (coeffs.reshape(-1, 6) @ basis).reshape(ta, lb, basis.shape[1]).to(out_dtype)
-    return torch.bmm(coeffs, basis[tiles]).to(out_dtype)
+        return (coeffs.reshape(-1, 6) @ basis).reshape(ta, lb, basis.shape[1])
+    return torch.bmm(coeffs, basis[tiles])
 
 
 class TileComposite(torch.autograd.Function):
@@ -127,9 +130,12 @@ class TileComposite(torch.autograd.Function):
         out = torch.zeros(n_tiles, slots, d, device=device, dtype=dtype)
         crossing = torch.zeros(n_tiles, slots, device=device, dtype=torch.int64)
         blocks = []
-        sentinel = torch.zeros(1, 6, device=device, dtype=coeffs.dtype)
+        # The coefficients come in float64 (their sum cancels); the exponents are fine in the
+        # working precision once the coefficients are exact.
+        sentinel = torch.zeros(1, 6, device=device, dtype=dtype)
         sentinel[0, 0] = _SENTINEL_EXPONENT
-        coeffs_ext = torch.cat([coeffs.detach(), sentinel])
+        coeffs_ext = torch.cat([coeffs.detach().to(dtype), sentinel])
+        basis = plan.basis.to(dtype)
         gid_ext = torch.cat([plan.gaussian_ids, plan.gaussian_ids.new_zeros(1)])
         offsets = plan.tile_offsets
         counts = offsets[1:] - offsets[:-1]
@@ -143,7 +149,7 @@ class TileComposite(torch.autograd.Function):
             lb = min(max(8, plan.block_elems // (ta * slots)), int(left.max()))
             rows = offsets[tiles][:, None] + start + ranks[None, :lb]
             rows = torch.where(ranks[None, :lb] < left[:, None], rows, n_isect)
-            t = _exponents(coeffs_ext[rows], plan.basis, tiles, dtype)  # -log alpha, [Ta, L, S]
+            t = _exponents(coeffs_ext[rows], basis, tiles)  # -log alpha, [Ta, L, S]
             t.clamp_min_(_T_CLAMP)
             t.masked_fill_(t > _T_SKIP, math.inf)
             alpha = t.neg_().exp_()
@@ -199,6 +205,7 @@ class TileComposite(torch.autograd.Function):
             behind = behind.div_(torch.rsub(alpha, 1.0)).to(dtype)
             p = grad_w.mul_(trans).sub_(behind).mul_(alpha)  # dL/dalpha * alpha
             p.masked_fill_(alpha >= alpha_cl, 0.0)  # clamped alpha: no gradient
+            # Moments of p in float64: the chain back to means and conics cancels like the forward.
             basis = plan.basis
             if basis.dim() == 2:
                 r = p.reshape(-1, slots).to(basis.dtype) @ basis.t()

@@ -23,6 +23,7 @@ from idsplat_ns.data.synthetic.lidar_sim import simulate_sweep
 from idsplat_ns.data.synthetic.raycast import RayCaster
 from idsplat_ns.data.synthetic.rig import cameras, lidar_pose
 from idsplat_ns.data.synthetic.world import World, build_world
+from idsplat_ns.data.images import write_instance_map
 from idsplat_ns.errors import IDSplatError
 
 GENERATOR_NAME = "idsplat_ns.data.synthetic"
@@ -116,7 +117,7 @@ def _make_frame(k: int) -> dict:
         t_img = t + cam.time_offset
         image, instance, _ = render_camera(caster, cam, t_img, cfg.cameras.supersample, cfg.cameras.shadows)
         writer.write_jpeg(tmp / "camera" / cam.name / f"{name}.jpg", image, cfg.cameras.jpeg_quality)
-        writer.write_png16(tmp / "idsplat_extras" / "instance_masks" / cam.name / f"{name}.png", instance)
+        write_instance_map(tmp / "idsplat_extras" / "instance_masks" / cam.name / f"{name}.png", instance)
         rot, pos = cam.pose(world, t_img)
         out["cameras"][cam.name] = (
             writer.pose_dict(world.local_to_world_rotation @ rot, world.points_to_world(pos[None])[0]),

@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 from PIL import Image
-from scipy.spatial.transform import Rotation
 
+from idsplat_ns.data.geometry import rotmat_to_quat
 from idsplat_ns.errors import IDSplatError
 
 CUBOID_COLUMNS = [
@@ -51,9 +51,7 @@ CUBOID_COLUMNS = [
 
 def pose_dict(rotation: np.ndarray, position: np.ndarray) -> dict:
     """PandaSet pose record for a sensor-to-world rotation [3, 3] and position [3]."""
-    x, y, z, w = Rotation.from_matrix(rotation).as_quat()
-    if w < 0:  # one canonical sign
-        x, y, z, w = -x, -y, -z, -w
+    w, x, y, z = rotmat_to_quat(rotation)  # one canonical sign: w >= 0
     return {
         "position": {"x": float(position[0]), "y": float(position[1]), "z": float(position[2])},
         "heading": {"w": float(w), "x": float(x), "y": float(y), "z": float(z)},
@@ -84,11 +82,6 @@ def write_npz(path: Path, **arrays: np.ndarray) -> None:
 def write_jpeg(path: Path, image: np.ndarray, quality: int) -> None:
     """RGB uint8 [H, W, 3] as JPEG."""
     Image.fromarray(image, mode="RGB").save(path, format="JPEG", quality=quality)
-
-
-def write_png16(path: Path, ids: np.ndarray) -> None:
-    """uint16 [H, W] instance ids as a 16-bit grey PNG."""
-    Image.fromarray(ids.astype(np.uint16)).save(path, format="PNG")
 
 
 def lidar_frame(points: np.ndarray, intensity: np.ndarray, times: np.ndarray) -> pd.DataFrame:

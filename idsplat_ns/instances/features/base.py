@@ -9,7 +9,6 @@ the instance Gaussians).
 
 from __future__ import annotations
 
-import json
 from abc import ABC, abstractmethod
 from collections import defaultdict
 from dataclasses import dataclass
@@ -22,6 +21,7 @@ from tqdm import tqdm
 from idsplat_ns.data.camera import CameraImage
 from idsplat_ns.data.images import load_rgb
 from idsplat_ns.data.scene import Scene
+from idsplat_ns.instances.cache import load_npz, save_npz
 from idsplat_ns.instances.lifting import LiftedInstances
 
 ObsKey = tuple[int, int]  # (instance ID, frame)
@@ -44,20 +44,15 @@ class PointFeatures:
             arrays[f"f_{iid}_{f}"] = v
         for (iid, f), v in self.colors.items():
             arrays[f"c_{iid}_{f}"] = v
-        arrays["meta_json"] = np.frombuffer(json.dumps({"extractor": self.extractor}).encode(), np.uint8)
-        with open(path, "wb") as fh:
-            np.savez(fh, **arrays)
+        save_npz(path, arrays, {"extractor": self.extractor}, compress=False)
 
     @classmethod
     def load(cls, path: Path) -> "PointFeatures":
-        with np.load(path) as data:
-            meta = json.loads(bytes(data["meta_json"]).decode())
-            feats, cols = {}, {}
-            for name in data.files:
-                if name == "meta_json":
-                    continue
-                kind, iid, f = name.split("_")
-                (feats if kind == "f" else cols)[(int(iid), int(f))] = data[name]
+        data, meta = load_npz(path)
+        feats, cols = {}, {}
+        for name, value in data.items():
+            kind, iid, f = name.split("_")
+            (feats if kind == "f" else cols)[(int(iid), int(f))] = value
         return cls(meta["extractor"], feats, cols)
 
 

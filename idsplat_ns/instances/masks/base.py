@@ -14,11 +14,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional
 
-import cv2
 import numpy as np
 
+from idsplat_ns.data.images import read_instance_map, write_instance_map  # noqa: F401 (re-exported)
 from idsplat_ns.data.scene import Scene
-from idsplat_ns.errors import IDSplatError
 
 PROMPT_CLASSES: tuple[str, ...] = ("car", "truck", "van", "bus", "train", "human", "cyclist", "bicycle", "pedestrian")
 """The paper's Grounded-SAM-2 class prompts (supplementary, "Instance decomposition")."""
@@ -48,21 +47,7 @@ class InstanceMaskSet:
     def load(self, camera: str, frame_index: int) -> Optional[np.ndarray]:
         """[H, W] uint16 instance IDs of one image, or None when that image has no mask file."""
         p = self.path(camera, frame_index)
-        if not p.is_file():
-            return None
-        ids = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
-        if ids is None or ids.ndim != 2 or ids.dtype != np.uint16:
-            raise IDSplatError(f"{p}: not a single-channel uint16 PNG instance map; rewrite it as documented in docs/instances.md")
-        return ids
-
-
-def write_instance_map(path: Path, ids: np.ndarray) -> None:  # ids: [H, W] integer
-    """Write one uint16 instance map as PNG (lossless)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    if ids.max(initial=0) > np.iinfo(np.uint16).max:
-        raise ValueError("instance IDs must fit in uint16")
-    if not cv2.imwrite(str(path), ids.astype(np.uint16)):
-        raise IDSplatError(f"{path}: could not write the instance map; check that the folder is writable")
+        return read_instance_map(p) if p.is_file() else None
 
 
 def write_labels(root: Path, labels: dict[int, str], extra: Optional[dict[int, dict]] = None) -> None:

@@ -20,48 +20,10 @@ import math
 
 import numpy as np
 
+from idsplat_ns.data.geometry import invert_pose, make_pose, rot_z, skew, so3_log
+
 # Below this |theta| the series forms are used: their truncation error is O(theta^6) < 1e-18.
 SERIES_THRESHOLD = 1e-3
-# Below this rotation angle the SO(3) log / Jacobians use their series forms.
-SO3_SMALL_ANGLE = 1e-6
-
-
-def skew(w: np.ndarray) -> np.ndarray:  # w: [3] -> [3, 3]
-    """The cross-product matrix ``[w]x`` with ``[w]x @ u == cross(w, u)``."""
-    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
-
-
-def so3_exp(w: np.ndarray) -> np.ndarray:  # w: [3] -> [3, 3]
-    """Rodrigues' formula, exact near zero through the series of its coefficients."""
-    theta2 = float(w @ w)
-    theta = math.sqrt(theta2)
-    if theta < SO3_SMALL_ANGLE:
-        a = 1.0 - theta2 / 6.0
-        b = 0.5 - theta2 / 24.0
-    else:
-        a = math.sin(theta) / theta
-        b = (1.0 - math.cos(theta)) / theta2
-    W = skew(w)
-    return np.eye(3) + a * W + b * (W @ W)
-
-
-def so3_log(R: np.ndarray) -> np.ndarray:  # R: [3, 3] -> [3]
-    """Rotation vector of ``R``; stable at zero and at pi."""
-    cos_theta = min(1.0, max(-1.0, 0.5 * (np.trace(R) - 1.0)))
-    v = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])  # = 2 sin(theta) axis
-    sin_theta = 0.5 * float(np.linalg.norm(v))
-    theta = math.atan2(sin_theta, cos_theta)
-    if theta < SO3_SMALL_ANGLE:
-        return 0.5 * v * (1.0 + theta * theta / 6.0)
-    if math.pi - theta < 1e-3:
-        # Near pi the antisymmetric part vanishes: take the axis from the symmetric part.
-        B = 0.5 * (R + R.T) - cos_theta * np.eye(3)  # = (1 - cos) axis axis^T
-        k = int(np.argmax(np.diag(B)))
-        axis = B[:, k] / math.sqrt(max(B[k, k], 1e-300))
-        if axis @ v < 0.0:
-            axis = -axis
-        return theta * axis / np.linalg.norm(axis)
-    return v * (theta / (2.0 * sin_theta))
 
 
 def so3_right_jacobian_inv(w: np.ndarray) -> np.ndarray:  # w: [3] -> [3, 3]
@@ -74,12 +36,6 @@ def so3_right_jacobian_inv(w: np.ndarray) -> np.ndarray:  # w: [3] -> [3, 3]
     else:
         c = 1.0 / theta2 - (1.0 + math.cos(theta)) / (2.0 * theta * math.sin(theta))
     return np.eye(3) + 0.5 * W + c * (W @ W)
-
-
-def rot_z(theta: float) -> np.ndarray:  # -> [3, 3]
-    """Rotation by ``theta`` about z."""
-    c, s = math.cos(theta), math.sin(theta)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 def _sinc_terms(x: float) -> tuple[float, float, float, float]:
@@ -137,9 +93,7 @@ def ct_delta_pose(v: float, kappa: float, dt: float) -> np.ndarray:  # -> [4, 4]
 
 def shared_rotation_pose(shared: np.ndarray) -> np.ndarray:  # shared: [3, 3] -> [4, 4]
     """The shared rotation as a 4x4 transform without translation."""
-    S = np.eye(4)
-    S[:3, :3] = shared
-    return S
+    return make_pose(shared, np.zeros(3))
 
 
 def ct_propagate(
@@ -151,7 +105,7 @@ def ct_propagate(
 ) -> np.ndarray:  # [4, 4]
     """Pose ``dt`` seconds after the state ``pose``: ``T' = T S Delta(v, kappa, dt) S^-1``."""
     S = shared_rotation_pose(shared)
-    return pose @ S @ ct_delta_pose(v, kappa, dt) @ np.linalg.inv(S)
+    return pose @ S @ ct_delta_pose(v, kappa, dt) @ invert_pose(S)
 
 
 def motion_residual(

@@ -15,7 +15,8 @@ import numpy as np
 
 from idsplat_ns.instances.smoothing import factors as F
 from idsplat_ns.instances.smoothing.config import SmoothingConfig
-from idsplat_ns.instances.smoothing.ct_model import ct_delta_pose, rot_z, shared_rotation_pose
+from idsplat_ns.data.geometry import invert_pose, rot_z
+from idsplat_ns.instances.smoothing.ct_model import ct_delta_pose, shared_rotation_pose
 
 # Half-width (in measurements) of the running median used for the initial guess.
 _INIT_MEDIAN_HALF_WIDTH = 2
@@ -58,7 +59,7 @@ class SmoothedTrajectory:
         M_k = self.poses[k] @ S
         M_next = self.poses[k + 1] @ S
         predicted_next = M_k @ ct_delta_pose(self.speeds[k], self.curvatures[k], dt_full)
-        mismatch = gtsam.Pose3.Logmap(gtsam.Pose3(np.linalg.inv(predicted_next) @ M_next))
+        mismatch = gtsam.Pose3.Logmap(gtsam.Pose3(invert_pose(predicted_next) @ M_next))
         M_t = M_k @ ct_delta_pose(self.speeds[k], self.curvatures[k], dt)
         M_t = M_t @ gtsam.Pose3.Expmap((dt / dt_full) * mismatch).matrix()
         return M_t @ S.T  # S is a rotation: its inverse is its transpose
