@@ -10,7 +10,6 @@ from __future__ import annotations
 import torch
 from nerfstudio.configs.base_config import MachineConfig, ViewerConfig
 from nerfstudio.engine.optimizers import AdamOptimizerConfig
-from nerfstudio.engine.schedulers import ExponentialDecaySchedulerConfig
 from nerfstudio.engine.trainer import TrainerConfig
 from nerfstudio.plugins.types import MethodSpecification
 
@@ -19,6 +18,7 @@ from idsplat_ns.errors import install_excepthook
 from idsplat_ns.nerfstudio.datamanager import IDSplatDataManagerConfig
 from idsplat_ns.nerfstudio.model import IDSplatModelConfig
 from idsplat_ns.nerfstudio.pipeline import IDSplatPipelineConfig
+from idsplat_ns.nerfstudio.schedulers import ExponentialDecaySchedulerConfig
 
 _startup.install()
 install_excepthook()

@@ -32,6 +32,7 @@ def _config(data: Path, out: Path, steps: int):
 @pytest.mark.slow
 def test_training_raises_held_out_psnr(tiny_street, tmp_path):
     cfg = _config(tiny_street, tmp_path, STEPS)
+    cfg.save_config()  # what ns-train does before training; ns-eval and ns-viewer load this file
     trainer = cfg.setup(local_rank=0, world_size=1)
     trainer.setup()
     before = trainer.pipeline.get_average_eval_image_metrics(step=0)

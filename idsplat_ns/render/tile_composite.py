@@ -40,7 +40,8 @@ _LOG_HALF = math.log(0.5)
 _T_CLAMP = -math.log(ALPHA_MAX)  # exponent at which alpha reaches the 0.999 clamp
 _T_SKIP = -math.log(ALPHA_MIN)  # exponent beyond which alpha < 1/255 is skipped
 _SENTINEL_EXPONENT = 1e30  # padding rows: alpha = 0
-DEFAULT_BLOCK_ELEMS = 1 << 19  # (row, sample) values per block: 2 MiB float32 per temporary
+_MIN_BLOCK_ROWS = 32  # rows per block at least, so per-tile work (D values per sample) stays small
+DEFAULT_BLOCK_ELEMS = 1 << 18  # (row, sample) values per block: 1 MiB float32 per temporary
 DEFAULT_CHUNK_ELEMS = DEFAULT_BLOCK_ELEMS  # former name, kept for callers
 
 
@@ -146,7 +147,7 @@ class TileComposite(torch.autograd.Function):
         while tiles.numel() > 0:
             ta = tiles.numel()
             left = counts[tiles] - start
-            lb = min(max(8, plan.block_elems // (ta * slots)), int(left.max()))
+            lb = min(max(_MIN_BLOCK_ROWS, plan.block_elems // (ta * slots)), int(left.max()))
             rows = offsets[tiles][:, None] + start + ranks[None, :lb]
             rows = torch.where(ranks[None, :lb] < left[:, None], rows, n_isect)
             t = _exponents(coeffs_ext[rows], basis, tiles)  # -log alpha, [Ta, L, S]
