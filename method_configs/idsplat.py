@@ -50,6 +50,9 @@ def _optimizers(max_steps: int, warmup_scale: float = 1.0) -> dict:
         "features": group(2.5e-3),
         "decoders": group(1e-3, 1e-3, warmup=500),
         "sensor_embeddings": group(1e-3, 1e-3, warmup=500),
+        # Instance trajectories (absent in static scenes; nerfstudio ignores unused groups).
+        "trajectory_positions": group(1e-3, 1e-4, warmup=1500),
+        "trajectory_rotations": group(5e-5, 1e-6, warmup=1500),
     }
 
 

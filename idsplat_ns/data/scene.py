@@ -7,7 +7,7 @@ raw-to-recentred transform and the raw time origin are kept so results can be ma
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Optional
 
@@ -106,6 +106,18 @@ class Scene:
             keep = np.sort(np.random.default_rng(seed).choice(len(points), max_points, replace=False))
             points, point_times = points[keep], point_times[keep]
         return points, point_times
+
+    def subset(self, frame_indices: set[int]) -> "Scene":
+        """The same scene restricted to some dataset frames (e.g. the training split), same world and clock."""
+        keep = np.array([f in frame_indices for f in self.frame_indices], dtype=bool)
+        return replace(
+            self,
+            frame_indices=self.frame_indices[keep],
+            frame_times=self.frame_times[keep],
+            ego_poses=self.ego_poses[keep],
+            images=[im for im in self.images if im.frame_index in frame_indices],
+            lidar=[s for s in self.lidar if s.frame_index in frame_indices],
+        )
 
     def summary(self) -> str:
         """One line describing the scene, for logs."""

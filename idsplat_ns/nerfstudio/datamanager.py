@@ -1,5 +1,6 @@
 """Full-image datamanager over a Scene: images per camera, the scene (with its lidar sweeps) for
-the model's initialisation, dynamic masks in evaluation batches."""
+the model's initialisation, the instance tracks of the chosen mode, dynamic masks in
+evaluation batches."""
 
 from __future__ import annotations
 
@@ -9,6 +10,9 @@ from typing import Literal, Optional, Tuple, Type
 import torch
 from nerfstudio.data.datamanagers.full_images_datamanager import FullImageDatamanager, FullImageDatamanagerConfig
 
+from idsplat_ns.instances.modes import InstanceMode, instance_tracks_for_mode
+from idsplat_ns.instances.runner import PreprocessConfig
+from idsplat_ns.nerfstudio.builtin_scene import cache_root
 from idsplat_ns.nerfstudio.dataparser import IDSplatDataParserConfig, PandaSetDataParserConfig
 from idsplat_ns.nerfstudio.dataset import IDSplatDataset
 
@@ -26,18 +30,30 @@ class IDSplatDataManagerConfig(FullImageDatamanagerConfig):
     """Cache images as uint8 (4x less memory; converted per step)."""
     eval_image_indices: Optional[Tuple[int, ...]] = None
     """Evaluate on every held-out image."""
+    instance_mode: InstanceMode = "self-supervised"
+    """Where instances come from: ``self-supervised`` (the paper: masks, lifting, registration,
+    smoothing), ``oracle`` (the dataset's annotated tracks: an upper bound) or ``static`` (none)."""
+    preprocess: PreprocessConfig = field(default_factory=PreprocessConfig)
+    """Instance preprocessing settings (self-supervised mode); paper defaults."""
 
 
 class IDSplatDataManager(FullImageDatamanager[IDSplatDataset]):
-    """nerfstudio's full-image datamanager with the IDSplat dataset."""
+    """nerfstudio's full-image datamanager with the IDSplat dataset and instance tracks."""
 
     config: IDSplatDataManagerConfig
 
     def __init__(self, config: IDSplatDataManagerConfig, device="cpu", test_mode="val", **kwargs):
         super().__init__(config, device=device, test_mode=test_mode, **kwargs)
+        meta = self.train_dataset.metadata
         # The model initialises Gaussians only for training ("val"); ns-eval and ns-viewer
-        # ("test"/"inference") load a checkpoint instead.
-        self.train_dataset.metadata["test_mode"] = test_mode
+        # ("test"/"inference") load a checkpoint instead (stage caches make the tracks cheap then).
+        meta["test_mode"] = test_mode
+        scene = meta["scene"]
+        train_frames = {im.frame_index for im in meta["split_images"]}
+        meta["instance_mode"] = config.instance_mode
+        meta["instance_tracks"] = instance_tracks_for_mode(
+            scene, config.instance_mode, train_frames, config.preprocess, cache_root() / "instances" / scene.name
+        )
 
     @property
     def scene(self):

@@ -16,13 +16,16 @@ from idsplat_ns.data.images import load_rgb
 class IDSplatDataset(InputDataset):
     """Images of one split of a Scene, at the dataparser's scale."""
 
-    exclude_batch_keys_from_device = InputDataset.exclude_batch_keys_from_device + ["dynamic_mask"]
+    exclude_batch_keys_from_device = InputDataset.exclude_batch_keys_from_device + [
+        "dynamic_mask", "dynamic_mask_pedestrian", "dynamic_mask_cyclist"
+    ]
 
     def __init__(self, dataparser_outputs, scale_factor: float = 1.0):
         super().__init__(dataparser_outputs, scale_factor)
         self.scene = self.metadata["scene"]
         self.split_images = self.metadata["split_images"]
         self.image_scale = float(self.metadata["image_scale"]) * scale_factor
+        self.extra_groups = [g for g in ("pedestrian", "cyclist") if any(t.moving and t.group == g for t in self.scene.tracks)]
 
     def get_numpy_image(self, image_idx: int) -> np.ndarray:
         return load_rgb(self.split_images[image_idx], self.image_scale)
@@ -31,5 +34,9 @@ class IDSplatDataset(InputDataset):
         if self.metadata.get("split") == "train":
             return {}
         image = self.split_images[data["image_idx"]]
-        mask = dynamic_mask(self.scene, image, self.image_scale)
-        return {"dynamic_mask": torch.from_numpy(mask)[..., None]}
+        # Moving vehicles (the paper's DPSNR), plus the other classes the data has.
+        out = {"dynamic_mask": torch.from_numpy(dynamic_mask(self.scene, image, self.image_scale))[..., None]}
+        for group in self.extra_groups:
+            mask = dynamic_mask(self.scene, image, self.image_scale, groups=(group,))
+            out[f"dynamic_mask_{group}"] = torch.from_numpy(mask)[..., None]
+        return out

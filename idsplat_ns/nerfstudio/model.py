@@ -1,13 +1,14 @@
-"""The IDSplat nerfstudio model. For now: static Gaussians (instances arrive with issue 7).
+"""The IDSplat nerfstudio model: static and per-instance Gaussians with learnable trajectories,
+rendered at each camera's time, decoded by the small CNN with sensor embeddings, densified by
+MCMC. The maths lives in :mod:`idsplat_ns.model` (no nerfstudio); this is the adapter.
 
-Camera path per the paper: Gaussians carry a base colour and a 13-d feature vector; rendered
-feature images plus an 8-d sensor embedding are decoded by a small residual CNN; loss
-0.8 L1 + 0.2 (1 - SSIM); resolution schedule 1/4, 1/2, full.
+Loss: 0.8 L1 + 0.2 (1 - SSIM) + the MCMC opacity/scale regularisers; resolution schedule 1/4,
+1/2, full (paper: until steps 3000 and 6000).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Dict, List, Optional, Tuple, Type
 
@@ -22,14 +23,15 @@ from torch import Tensor, nn
 
 from idsplat_ns.data.images import load_rgb
 from idsplat_ns.eval.image_metrics import psnr, ssim
-from idsplat_ns.model.decoders import RGBDecoderCNN
 from idsplat_ns.model.gaussians import GaussianSet
-from idsplat_ns.model.initialisation import InitConfig, initial_points_from_scene
+from idsplat_ns.model.initialisation import InitConfig
+from idsplat_ns.model.mcmc import MCMCConfig, MCMCDensifier, mcmc_regularisation
+from idsplat_ns.model.scene_model import DecoderConfig, SceneModel
 from idsplat_ns.model.schedules import resolution_downscale
-from idsplat_ns.render import rasterize_camera
 
 CONSOLE = Console()
 OPENGL_TO_OPENCV = torch.diag(torch.tensor([1.0, -1.0, -1.0]))
+GAUSSIAN_GROUPS = GaussianSet.PARAM_NAMES
 
 
 @dataclass
@@ -39,16 +41,8 @@ class IDSplatModelConfig(ModelConfig):
     _target: Type = field(default_factory=lambda: IDSplatModel)
     enable_collider: bool = False
     """Ray colliders are for ray-marching models; a rasterizer renders whole cameras."""
-    feature_dim: int = 13
-    """Per-Gaussian feature vector size (paper: 13)."""
-    sensor_embedding_dim: int = 8
-    """Per-camera appearance embedding size (paper: 8)."""
-    decoder_hidden: int = 32
-    """Channels of the RGB decoder CNN (paper: 32)."""
-    decoder_blocks: int = 2
-    """Residual blocks of the RGB decoder CNN (paper: 2)."""
-    decoder_kernel: int = 3
-    """Kernel size of the RGB decoder CNN (paper: 3)."""
+    decoder: DecoderConfig = field(default_factory=DecoderConfig)
+    """Feature, embedding and CNN sizes of the camera path."""
     ssim_lambda: float = 0.2
     """Weight of (1 - SSIM); L1 gets 1 - ssim_lambda (paper: lambda_r = 0.8)."""
     resolution_schedule: Tuple[int, ...] = (3000, 6000)
@@ -61,6 +55,14 @@ class IDSplatModelConfig(ModelConfig):
     """Cap the random points at this many per lidar point so small scenes stay small (None: no cap)."""
     init_seed: int = 0
     """Seed of the initialisation (subsampling, random points, orientations)."""
+    refine_trajectories: bool = True
+    """Optimise instance trajectories jointly with the Gaussians (False: the paper's ablation g)."""
+    use_mcmc: bool = True
+    """MCMC densification (relocation, growth to the cap, noise); False keeps the initial set."""
+    mcmc: MCMCConfig = field(default_factory=MCMCConfig)
+    """MCMC settings (paper / Kheradmand et al. defaults)."""
+    cap_factor: float = 3.0
+    """Scene-sized Gaussian cap: this many times the initial count, at most ``mcmc.cap_max`` (paper 10M)."""
     lpips_backbone: Optional[Path] = None
     """Torchvision AlexNet or VGG16 weights file for LPIPS at evaluation; without it LPIPS is skipped with a note."""
     lpips_net: str = "alex"
@@ -70,7 +72,7 @@ class IDSplatModelConfig(ModelConfig):
 
 
 class IDSplatModel(Model):
-    """Gaussians rendered by the project's rasterizer, decoded by the CNN with sensor embeddings."""
+    """nerfstudio adapter around :class:`~idsplat_ns.model.scene_model.SceneModel`."""
 
     config: IDSplatModelConfig
 
@@ -79,55 +81,87 @@ class IDSplatModel(Model):
         metadata = self.kwargs.get("metadata", {})
         scene = metadata["scene"]
         self.camera_names: List[str] = list(metadata["camera_names"])
+        tracks = metadata.get("instance_tracks")
+        trajectories = None
+        if tracks is not None and len(tracks.instances) > 0:
+            from idsplat_ns.model.trajectories import InstanceTrajectories
+
+            trajectories = InstanceTrajectories.from_instance_tracks(tracks, refine=self.config.refine_trajectories)
         if metadata.get("test_mode", "val") == "val":
-            self.gaussians = self._initial_gaussians(scene, metadata["split_images"])
+            gaussians = self._initial_gaussians(scene, metadata["split_images"], tracks if trajectories is not None else None)
         else:
             # ns-eval / ns-viewer: a checkpoint is loaded next (load_state_dict resizes), so the
             # initialisation (a KNN over millions of points at paper settings) would be wasted.
-            self.gaussians = GaussianSet(0, self.config.feature_dim)
-        self.sensor_embedding = nn.Embedding(len(self.camera_names), self.config.sensor_embedding_dim)
-        nn.init.zeros_(self.sensor_embedding.weight)
-        self.rgb_decoder = RGBDecoderCNN(
-            self.config.feature_dim, self.config.sensor_embedding_dim, self.config.decoder_hidden,
-            self.config.decoder_kernel, self.config.decoder_blocks,
-        )
-        self.background = nn.Parameter(torch.logit(torch.tensor(self.config.background_color).clamp(0.01, 0.99)))
+            gaussians = GaussianSet(0, self.config.decoder.feature_dim)
+        self.scene_model = SceneModel(gaussians, len(self.camera_names), self.config.decoder, trajectories, self.config.background_color)
+        cap = min(self.config.mcmc.cap_max, int(self.config.cap_factor * max(gaussians.num, 1)))
+        self.mcmc_config = replace(self.config.mcmc, cap_max=cap)
+        self.densifier = MCMCDensifier(self.mcmc_config, seed=self.config.init_seed) if self.config.use_mcmc else None
+        # Render times: nerfstudio's viewer gives times in [0, 1] over the sequence.
+        self.time_start = float(scene.frame_times[0])
+        self.time_span = max(float(scene.frame_times[-1] - scene.frame_times[0]), 1e-6)
         self.step = 0
         self._lpips = None
 
-    def _initial_gaussians(self, scene, train_images) -> GaussianSet:
+    def _initial_gaussians(self, scene, train_images, tracks) -> GaussianSet:
         init_cfg = InitConfig(
             max_lidar_points=self.config.max_lidar_points,
             num_random_points=self.config.num_random_points,
             points_per_lidar_point=self.config.random_points_per_lidar_point,
             seed=self.config.init_seed,
         )
-        init = initial_points_from_scene(scene, init_cfg, lambda im: load_rgb(im, 0.5), images=train_images)
-        CONSOLE.print(f"IDSplat: {len(init.means)} initial Gaussians ({int(init.is_lidar.sum())} from lidar)")
-        return GaussianSet.from_points(init, self.config.feature_dim, opacity=init_cfg.initial_opacity, seed=self.config.init_seed)
+        def load(im):
+            return load_rgb(im, 0.5)
+
+        if tracks is None:
+            from idsplat_ns.model.initialisation import initial_points_from_scene
+
+            init = initial_points_from_scene(scene, init_cfg, load, images=train_images)
+            ids = None
+        else:
+            from idsplat_ns.model.instance_init import instance_initial_points
+
+            init = instance_initial_points(scene, tracks, init_cfg, load, images=train_images)
+            ids = init.instance_ids
+        g = GaussianSet.from_points(init, self.config.decoder.feature_dim, opacity=init_cfg.initial_opacity, seed=self.config.init_seed)
+        if ids is not None:
+            g.instance_ids.copy_(torch.from_numpy(ids).long())
+        n_inst = 0 if ids is None else int((ids > 0).sum())
+        CONSOLE.print(f"IDSplat: {g.num} initial Gaussians ({int(init.is_lidar.sum())} from lidar, {n_inst} on instances)")
+        return g
+
+    @property
+    def gaussians(self) -> GaussianSet:
+        return self.scene_model.gaussians
 
     # --- training plumbing -------------------------------------------------------------------
-    def get_training_callbacks(self, training_callback_attributes: TrainingCallbackAttributes) -> List[TrainingCallback]:
+    def get_training_callbacks(self, attrs: TrainingCallbackAttributes) -> List[TrainingCallback]:
         def set_step(step: int) -> None:
             self.step = step
 
-        return [TrainingCallback([TrainingCallbackLocation.BEFORE_TRAIN_ITERATION], set_step)]
+        callbacks = [TrainingCallback([TrainingCallbackLocation.BEFORE_TRAIN_ITERATION], set_step)]
+        if self.densifier is not None and attrs.optimizers is not None:
+            optimizers = attrs.optimizers.optimizers
+
+            def densify(step: int) -> None:
+                lr_means = optimizers["means"].param_groups[0]["lr"]
+                self.densifier.step(step, self.gaussians, {k: optimizers[k] for k in GAUSSIAN_GROUPS}, lr_means)
+
+            callbacks.append(TrainingCallback([TrainingCallbackLocation.AFTER_TRAIN_ITERATION], densify))
+        return callbacks
 
     def get_param_groups(self) -> Dict[str, List[nn.Parameter]]:
-        g = self.gaussians
-        return {
-            "means": [g.means],
-            "scales": [g.scales],
-            "quats": [g.quats],
-            "opacities": [g.opacities],
-            "features_rgb": [g.features_rgb],
-            "features": [g.features],
-            "decoders": list(self.rgb_decoder.parameters()) + [self.background],
-            "sensor_embeddings": list(self.sensor_embedding.parameters()),
-        }
+        g, sm = self.gaussians, self.scene_model
+        groups = {name: [getattr(g, name)] for name in GAUSSIAN_GROUPS}
+        groups["decoders"] = list(sm.rgb_decoder.parameters()) + [sm.background]
+        groups["sensor_embeddings"] = list(sm.sensor_embedding.parameters())
+        if sm.trajectories is not None:
+            groups["trajectory_positions"] = list(sm.trajectories.position_parameters())
+            groups["trajectory_rotations"] = list(sm.trajectories.rotation_parameters())
+        return groups
 
     def load_state_dict(self, state_dict, strict: bool = True, **kwargs):  # type: ignore[override]
-        num = state_dict["gaussians.means"].shape[0]
+        num = state_dict["scene_model.gaussians.means"].shape[0]
         if num != self.gaussians.num:
             self.gaussians.resize_(num)
         self.step = 10**9  # a loaded model renders at full resolution
@@ -137,10 +171,9 @@ class IDSplatModel(Model):
     def _camera_inputs(self, camera: Cameras, downscale: int) -> tuple[Tensor, Tensor, int, int]:
         c2w = camera.camera_to_worlds[0].to(self.device)  # [3, 4] OpenGL axes
         R = c2w[:3, :3] @ OPENGL_TO_OPENCV.to(c2w)
-        t = c2w[:3, 3]
         viewmat = torch.eye(4, device=self.device)
         viewmat[:3, :3] = R.T
-        viewmat[:3, 3] = -R.T @ t
+        viewmat[:3, 3] = -R.T @ c2w[:3, 3]
         width, height = int(camera.width[0, 0]) // downscale, int(camera.height[0, 0]) // downscale
         sx, sy = width / float(camera.width[0, 0]), height / float(camera.height[0, 0])
         K = torch.tensor(
@@ -149,37 +182,25 @@ class IDSplatModel(Model):
              [0.0, 0.0, 1.0]],
             device=self.device,
         )
-        return viewmat[None], K[None], width, height
+        return viewmat, K, width, height
 
-    def _downscale(self) -> int:
-        return resolution_downscale(self.step, self.config.resolution_schedule) if self.training else 1
+    def _render_time(self, camera: Cameras) -> Optional[float]:
+        """Seconds since the sequence start: the image's own time, else the viewer's [0, 1] slider."""
+        meta = camera.metadata or {}
+        if "time_seconds" in meta:
+            return float(meta["time_seconds"].reshape(-1)[0])
+        if camera.times is not None:
+            return self.time_start + float(camera.times.reshape(-1)[0]) * self.time_span
+        return None
 
     def get_outputs(self, camera: Cameras) -> Dict[str, Tensor]:  # type: ignore[override]
         if not isinstance(camera, Cameras) or camera.shape[0] != 1:
             raise ValueError("IDSplatModel renders one Cameras object of one camera at a time")
-        viewmat, K, width, height = self._camera_inputs(camera, self._downscale())
-        g = self.gaussians.activated()
-        feats = torch.cat([g["colors"], g["features"]], dim=1)
-        out = rasterize_camera(
-            g["means"], g["quats"], g["scales"], g["opacities"], feats, viewmat, K, width, height,
-            # Per-instance maps cost a compositing channel each; the static model has none.
-            instance_ids=self.gaussians.instance_ids if bool((self.gaussians.instance_ids > 0).any()) else None,
-        )
-        alpha = out.alpha[0]
-        background = torch.sigmoid(self.background)
-        base = out.features[0, ..., :3] + (1 - alpha) * background
-        sensor = 0
-        if camera.metadata is not None and "sensor_idx" in camera.metadata:
-            sensor = int(camera.metadata["sensor_idx"].reshape(-1)[0])
-        emb = self.sensor_embedding.weight[sensor : sensor + 1]
-        rgb = self.rgb_decoder(base[None], out.features[:, ..., 3:], emb)[0]
-        return {
-            "rgb": rgb,
-            "depth": out.depth[0],
-            "accumulation": alpha,
-            "instance_id": out.instance_id[0, ..., None].float(),  # -1 where nothing is rendered
-            "background": background,
-        }
+        downscale = resolution_downscale(self.step, self.config.resolution_schedule) if self.training else 1
+        viewmat, K, width, height = self._camera_inputs(camera, downscale)
+        meta = camera.metadata or {}
+        sensor = int(meta["sensor_idx"].reshape(-1)[0]) if "sensor_idx" in meta else 0
+        return self.scene_model.render_camera(viewmat, K, width, height, self._render_time(camera), sensor)
 
     @torch.no_grad()
     def get_outputs_for_camera(self, camera: Cameras, obb_box=None) -> Dict[str, Tensor]:  # type: ignore[override]
@@ -205,7 +226,10 @@ class IDSplatModel(Model):
         l1 = (pred - gt).abs().mean()
         s = ssim(pred.permute(2, 0, 1)[None], gt.permute(2, 0, 1)[None])
         lam = self.config.ssim_lambda
-        return {"main_loss": (1 - lam) * l1 + lam * (1 - s)}
+        losses = {"main_loss": (1 - lam) * l1 + lam * (1 - s)}
+        if self.densifier is not None and self.training:
+            losses["mcmc_reg"] = mcmc_regularisation(self.gaussians, self.mcmc_config)
+        return losses
 
     def get_image_metrics_and_images(self, outputs, batch) -> Tuple[Dict[str, float], Dict[str, Tensor]]:
         pred = outputs["rgb"].clamp(0, 1)
@@ -214,9 +238,10 @@ class IDSplatModel(Model):
             "psnr": float(psnr(pred, gt)),
             "ssim": float(ssim(pred.permute(2, 0, 1)[None], gt.permute(2, 0, 1)[None])),
         }
-        mask = batch.get("dynamic_mask")
-        if mask is not None and bool(mask.any()):
-            metrics["dpsnr"] = float(psnr(pred, gt, mask.to(self.device)[..., 0]))
+        for key, mask in batch.items():
+            # dynamic_mask: moving vehicles (the paper's DPSNR); dynamic_mask_<class> per class.
+            if key.startswith("dynamic_mask") and bool(mask.any()):
+                metrics["dpsnr" + key[len("dynamic_mask"):]] = float(psnr(pred, gt, mask.to(self.device)[..., 0]))
         lpips = self._lpips_metric()
         if lpips is not None:
             metrics["lpips"] = float(lpips(pred, gt))
@@ -224,6 +249,9 @@ class IDSplatModel(Model):
             "img": torch.cat([gt, pred], dim=1),
             "depth": colormaps.apply_depth_colormap(outputs["depth"], accumulation=outputs["accumulation"]),
         }
+        if self.scene_model.has_instances:
+            ids = outputs["instance_id"][..., 0].long()
+            images["instances"] = instance_colors(ids)
         return metrics, images
 
     def _lpips_metric(self):
@@ -234,3 +262,14 @@ class IDSplatModel(Model):
 
             self._lpips = LPIPS.from_files(self.config.lpips_backbone, net=self.config.lpips_net).to(self.device)
         return self._lpips
+
+
+def instance_colors(ids: Tensor) -> Tensor:
+    """[H, W] instance IDs (-1 empty, 0 static) as a colour image [H, W, 3]: static grey, instances
+    in distinct hues, empty black."""
+    golden = 0.618033988749895
+    hue = (ids.clamp(min=0).float() * golden) % 1.0
+    k = torch.tensor([5.0, 3.0, 1.0], device=ids.device)
+    rgb = 1 - 0.8 * torch.clamp(torch.minimum((k + hue[..., None] * 6) % 6, 4 - (k + hue[..., None] * 6) % 6), 0, 1)
+    rgb = torch.where((ids == 0)[..., None], torch.full_like(rgb, 0.5), rgb)
+    return torch.where((ids < 0)[..., None], torch.zeros_like(rgb), rgb)

@@ -30,7 +30,19 @@ class IDSplatPipelineConfig(VanillaPipelineConfig):
 
 
 class IDSplatPipeline(VanillaPipeline):
-    """Vanilla pipeline whose image-metric average handles per-image optional metrics."""
+    """Vanilla pipeline whose image-metric average handles per-image optional metrics and adds
+    the tracking metrics of the instance trajectories and the render speed."""
+
+    def _tracking_metrics(self) -> dict:
+        """CLEAR-MOT of the (optimised) trajectories against the ground truth, when both exist."""
+        trajectories = self.model.scene_model.trajectories
+        scene = self.datamanager.scene
+        if trajectories is None or not any(t.moving for t in scene.tracks):
+            return {}
+        from idsplat_ns.eval.trajectory_eval import flatten_metrics, tracking_summary
+
+        with torch.no_grad():
+            return flatten_metrics(tracking_summary(scene, trajectories.positions_at))
 
     def get_average_image_metrics(self, data_loader, image_prefix: str, step: Optional[int] = None,
                                   output_path: Optional[Path] = None, get_std: bool = False):
@@ -62,6 +74,8 @@ class IDSplatPipeline(VanillaPipeline):
             if len(values) != len(per_image):
                 result[f"{key}_num_images"] = len(values)
         result["num_images"] = len(per_image)
+        result["render_mpix_per_s"] = result.pop("num_rays_per_sec") / 1e6
+        result.update(self._tracking_metrics())
         if "lpips" not in result and step is None:
             # Only for ns-eval's JSON (step None): the trainer logs metrics as scalars.
             result["lpips_note"] = LPIPS_NOTE

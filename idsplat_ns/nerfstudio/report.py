@@ -11,7 +11,17 @@ from rich.table import Table
 
 from idsplat_ns.errors import IDSplatError, run_cli
 
-ROWS = (("psnr", "PSNR (dB)"), ("ssim", "SSIM"), ("dpsnr", "DPSNR (dB, moving vehicles)"), ("lpips", "LPIPS"))
+ROWS = (
+    ("psnr", "PSNR (dB)"),
+    ("ssim", "SSIM"),
+    ("dpsnr", "DPSNR (dB, moving vehicles)"),
+    ("dpsnr_pedestrian", "DPSNR (dB, pedestrians)"),
+    ("dpsnr_cyclist", "DPSNR (dB, cyclists)"),
+    ("lpips", "LPIPS"),
+    ("mota@2m", "tracking MOTA @ 2 m"),
+    ("motp@2m", "tracking MOTP @ 2 m (m)"),
+    ("render_mpix_per_s", "render speed (MP/s)"),
+)
 
 
 def main() -> None:

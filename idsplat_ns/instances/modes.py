@@ -1,0 +1,64 @@
+"""Where the model's instances come from: the three modes of the method.
+
+* ``self-supervised`` (default, the paper): masks -> lifting -> registration -> smoothing
+  (:func:`idsplat_ns.instances.runner.run_preprocessing`), on the training frames only.
+* ``oracle``: the dataset's annotated tracks (:mod:`idsplat_ns.instances.oracle`), the
+  SplatAD-style upper bound, named as such.
+* ``static``: no instances (the baseline without them).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+from typing import Literal, Optional
+
+from rich.console import Console
+
+from idsplat_ns.data.scene import Scene
+from idsplat_ns.instances.masks.precomputed import PrecomputedMasksConfig
+from idsplat_ns.instances.runner import PreprocessConfig, run_preprocessing
+from idsplat_ns.instances.tracks import InstanceTracks
+
+InstanceMode = Literal["self-supervised", "oracle", "static"]
+CONSOLE = Console()
+
+
+def builtin_mask_stand_in(scene: Scene, config: PreprocessConfig) -> PreprocessConfig:
+    """On the synthetic street, with no Grounded-SAM-2 files and no mask folder given, use the
+    generator's 2D instance masks as the precomputed mask source: they stand in for the
+    detector's output (no model weights can be had offline). Lifting, registration and smoothing
+    stay self-supervised; no 3D box or track is read."""
+    masks = config.masks
+    wants_auto = masks.kind == "auto" and masks.grounded_sam2.detector_path is None and masks.precomputed.mask_dir is None
+    folder = None if scene.root is None else scene.root / "idsplat_extras" / "instance_masks"
+    if not (wants_auto and scene.source == "synthetic" and folder is not None and folder.is_dir()):
+        return config
+    CONSOLE.print("[yellow]note: no Grounded-SAM-2 files given; the synthetic street's 2D instance masks stand in for its output")
+    pre = PrecomputedMasksConfig(mask_dir=folder, instances_json=folder.parent / "instances.json")
+    return replace(config, masks=replace(masks, kind="precomputed", precomputed=pre))
+
+
+def instance_tracks_for_mode(
+    scene: Scene,
+    mode: InstanceMode,
+    train_frames: set[int],
+    preprocess: PreprocessConfig,
+    cache_dir: Path,
+) -> Optional[InstanceTracks]:
+    """The instance tracks the model starts from (None in static mode)."""
+    if mode == "static":
+        return None
+    if not scene.has_lidar:
+        CONSOLE.print("[yellow]note: the scene has no lidar; instances are lifted to lidar points, so the model is static")
+        return None
+    train_scene = scene.subset(train_frames)
+    if mode == "oracle":
+        from idsplat_ns.instances.oracle import oracle_instance_tracks
+
+        CONSOLE.print("[bold]Oracle mode: instance tracks from the dataset's annotations (an upper bound, not the method)")
+        return oracle_instance_tracks(train_scene)
+    if mode != "self-supervised":
+        raise ValueError(f"unknown instance mode {mode!r}")
+    config = builtin_mask_stand_in(scene, preprocess)
+    return run_preprocessing(train_scene, config, cache_dir, progress=True, verbose=True).tracks

@@ -1,0 +1,106 @@
+"""Compose the scene at a time: static Gaussians as they are, instance Gaussians moved to the world.
+
+Paper Eq. (1): ``mu_{i,t} = T_{z_i,t} mu_i``; a Gaussian's orientation turns with its instance,
+so its quaternion becomes ``q(R) * q``. Gaussians of instances that do not exist at the render
+time (outside their trajectory span) are dropped, as are IDs that have no trajectory.
+
+All functions are differentiable w.r.t. means, quaternions and the poses, and work on whichever
+device and float dtype their inputs use.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from idsplat_ns.model.trajectories import rotmat_to_quat
+
+
+def quat_multiply(a: Tensor, b: Tensor) -> Tensor:  # a, b: [..., 4] wxyz -> [..., 4]
+    """Hamilton product ``a * b`` (the rotation of ``b`` followed by that of ``a``); norms multiply."""
+    aw, ax, ay, az = a.unbind(-1)
+    bw, bx, by, bz = b.unbind(-1)
+    return torch.stack(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ],
+        -1,
+    )
+
+
+def quat_conjugate(q: Tensor) -> Tensor:  # q: [..., 4] -> [..., 4]
+    """``(w, -x, -y, -z)``: the inverse rotation for a unit quaternion."""
+    return q * torch.tensor([1.0, -1.0, -1.0, -1.0], dtype=q.dtype, device=q.device)
+
+
+def canonical_to_world(points: Tensor, R: Tensor, t: Tensor) -> Tensor:
+    """``R p + t`` for points [..., 3] with rotations [..., 3, 3] and translations [..., 3]
+    (broadcast: one pose for all points, or one pose per point)."""
+    return (R @ points[..., None]).squeeze(-1) + t
+
+
+def world_to_canonical(points_world: Tensor, R: Tensor, t: Tensor) -> Tensor:
+    """Inverse of :func:`canonical_to_world`: ``R^T (p - t)``; same broadcasting."""
+    return (R.transpose(-1, -2) @ (points_world - t)[..., None]).squeeze(-1)
+
+
+def rotate_quats(R: Tensor, quats: Tensor) -> Tensor:
+    """Orientations [..., 4] (wxyz, any norm) turned by rotations [..., 3, 3]: ``q(R) * q``."""
+    return quat_multiply(rotmat_to_quat(R), quats)
+
+
+def unrotate_quats(R: Tensor, quats_world: Tensor) -> Tensor:
+    """Inverse of :func:`rotate_quats`: ``q(R)^-1 * q`` (world orientation -> canonical)."""
+    return quat_multiply(quat_conjugate(rotmat_to_quat(R)), quats_world)
+
+
+def trajectory_index(instance_ids: Tensor, traj_ids: Tensor) -> Tensor:
+    """Row of each Gaussian's instance in the trajectory arrays: [N] int64, -1 for the background
+    (ID 0) and for IDs without a trajectory."""
+    ids = instance_ids.long()
+    traj_ids = traj_ids.long().to(ids.device)
+    size = int(max(int(ids.max()) if ids.numel() else 0, int(traj_ids.max()) if traj_ids.numel() else 0)) + 1
+    lut = torch.full((size,), -1, dtype=torch.int64, device=ids.device)
+    lut[traj_ids] = torch.arange(len(traj_ids), device=ids.device)
+    lut[0] = -1  # ID 0 is the background, never an instance
+    return lut[ids.clamp_min(0)]
+
+
+def compose_gaussians(
+    means: Tensor,  # [N, 3] world (ID 0) or canonical (ID k > 0)
+    quats: Tensor,  # [N, 4] wxyz, any norm (the norm is kept)
+    instance_ids: Tensor,  # [N] int
+    traj_R: Tensor,  # [Z, 3, 3] canonical -> world rotation of each trajectory at the render time
+    traj_t: Tensor,  # [Z, 3] translation
+    present: Tensor,  # [Z] bool, instance exists at the render time
+    traj_ids: Tensor,  # [Z] int instance ID of each trajectory row
+) -> tuple[Tensor, Tensor, Tensor]:
+    """World means [M, 3] and quaternions [M, 4] of the Gaussians to render, and ``keep`` [N] bool.
+
+    Rows of the outputs are the kept Gaussians in their original order (``means[keep]`` order),
+    so other per-Gaussian tensors are selected with the same ``keep``. Static Gaussians pass
+    unchanged; instance Gaussians are moved by their instance's pose; Gaussians of absent
+    instances, or with an ID that has no trajectory, are dropped.
+    """
+    row = trajectory_index(instance_ids, traj_ids)  # [N]
+    dynamic = instance_ids.long() > 0
+    # Row -1 (background, unknown ID) reads the appended False: safe also when Z == 0.
+    present_pad = torch.cat([present.to(device=means.device, dtype=torch.bool),
+                             torch.zeros(1, dtype=torch.bool, device=means.device)])
+    row_present = present_pad[row]
+    keep = ~dynamic | row_present
+    means_k, quats_k, row_k = means[keep], quats[keep], row[keep]
+    dyn = torch.nonzero(row_k >= 0).squeeze(-1)  # kept instance Gaussians, positions in the output
+    if dyn.numel() == 0:
+        return means_k, quats_k, keep
+    r = row_k[dyn]
+    R, t = traj_R[r], traj_t[r]  # one pose per instance Gaussian (only those, not all N)
+    moved_means = canonical_to_world(means_k[dyn], R, t)
+    # q(R) once per trajectory, then gathered: cheaper than converting N matrices.
+    moved_quats = quat_multiply(rotmat_to_quat(traj_R)[r], quats_k[dyn])
+    means_w = means_k.index_put((dyn,), moved_means)
+    quats_w = quats_k.index_put((dyn,), moved_quats)
+    return means_w, quats_w, keep

@@ -1,0 +1,307 @@
+"""Learnable instance trajectories: a rigid pose per instance and time step, interpolated in time.
+
+The paper (Sec. 3.5, supplementary Table 10) optimises, per instance ``z`` and time step ``k``, a
+position and a rotation, initialised from the smoothed trajectory, jointly with the Gaussians
+(positions: lr 1e-3 -> 1e-4, rotations: 5e-5 -> 1e-6, both with 1500 warm-up steps). Poses at a
+render time between steps come from interpolating the bracketing steps.
+
+Parametrisation (why): positions are learned directly in world metres; rotations are the initial
+rotation times a small body-frame correction ``R = R0 @ exp(delta)``, ``delta`` zero-initialised,
+so that the optimiser's learning rate reads as radians and Adam's step is isotropic in rotation.
+
+Interpolation and presence (the choices, documented here and tested):
+
+* An instance's *span* runs from its first to its last valid step. Invalid steps inside the span
+  (gaps, e.g. frames where the oracle box or a registration is missing) are initialised by
+  interpolating their valid neighbours and are then ordinary learnable steps: images at those
+  times still supervise the object.
+* At a time ``t`` inside the span the pose interpolates the two bracketing steps: translation
+  linearly, rotation along the geodesic ``R_k exp(w log(R_k^T R_k+1))`` (slerp), with
+  ``w = (t - t_k) / (t_k+1 - t_k)``; at a step time it equals that step exactly.
+* An instance is *present* at ``t`` iff ``t`` lies in ``[t_first - margin, t_last + margin]``.
+  The margin (default: half the median step) exists because a frame's sensors do not fire at the
+  frame's own time: a camera may expose a few ms before the lidar sweep time that defines the
+  frame, and lidar rays span a whole sweep; with a zero margin an object would vanish from the
+  very images that observed it at the ends of its span. Inside the margin the end segment is
+  extrapolated at constant velocity (the same formula with ``w`` outside [0, 1]); an instance
+  with a single valid step keeps that pose. Set ``span_margin=0`` for the strict span.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+from idsplat_ns.data.geometry import interpolate_poses
+from idsplat_ns.instances.tracks import InstanceTracks
+
+# Below this angle (radians) the SO(3) exp/log use their Taylor series (gradients stay finite).
+_SMALL_ANGLE = 1e-4
+
+
+@dataclass(frozen=True)
+class TrajectoryLearningRates:
+    """The paper's optimiser settings for trajectories (supplementary Table 10); exponential decay."""
+
+    positions_initial: float = 1e-3
+    """Initial learning rate of the per-step positions (metres)."""
+    positions_final: float = 1e-4
+    """Final learning rate of the positions."""
+    rotations_initial: float = 5e-5
+    """Initial learning rate of the per-step so(3) corrections (radians)."""
+    rotations_final: float = 1e-6
+    """Final learning rate of the rotation corrections."""
+    warmup_steps: int = 1500
+    """Warm-up steps of both groups."""
+
+
+# ---------------------------------------------------------------------------------------------
+# SO(3) maths on torch tensors (differentiable, batched, stable at zero angle)
+# ---------------------------------------------------------------------------------------------
+
+
+def hat(w: Tensor) -> Tensor:  # w: [..., 3] -> [..., 3, 3]
+    """Cross-product matrices ``[w]x`` with ``[w]x @ u == cross(w, u)``."""
+    zero = torch.zeros_like(w[..., 0])
+    x, y, z = w.unbind(-1)
+    return torch.stack(
+        [torch.stack([zero, -z, y], -1), torch.stack([z, zero, -x], -1), torch.stack([-y, x, zero], -1)], -2
+    )
+
+
+def so3_exp(w: Tensor) -> Tensor:  # w: [..., 3] -> [..., 3, 3]
+    """Rodrigues' formula; the series form below ``_SMALL_ANGLE`` keeps the gradient at 0 exact."""
+    theta2 = (w * w).sum(-1)
+    small = theta2 < _SMALL_ANGLE**2
+    # Double-where: the unused branch must not see theta = 0 (its gradient would be NaN).
+    theta2_safe = torch.where(small, torch.ones_like(theta2), theta2)
+    theta = torch.sqrt(theta2_safe)
+    a = torch.where(small, 1.0 - theta2 / 6.0, torch.sin(theta) / theta)
+    b = torch.where(small, 0.5 - theta2 / 24.0, (1.0 - torch.cos(theta)) / theta2_safe)
+    W = hat(w)
+    eye = torch.eye(3, dtype=w.dtype, device=w.device).expand(W.shape)
+    return eye + a[..., None, None] * W + b[..., None, None] * (W @ W)
+
+
+def rotmat_to_quat(R: Tensor) -> Tensor:  # R: [..., 3, 3] -> [..., 4] wxyz, w >= 0
+    """Unit quaternions of rotation matrices (Shepperd's largest-component branch, differentiable).
+
+    All four branches are evaluated with their square-root arguments clamped positive, so the
+    branches that are not selected contribute neither NaN values nor NaN gradients.
+    """
+    r00, r01, r02 = R[..., 0, 0], R[..., 0, 1], R[..., 0, 2]
+    r10, r11, r12 = R[..., 1, 0], R[..., 1, 1], R[..., 1, 2]
+    r20, r21, r22 = R[..., 2, 0], R[..., 2, 1], R[..., 2, 2]
+    args = torch.stack(
+        [1.0 + r00 + r11 + r22, 1.0 + r00 - r11 - r22, 1.0 - r00 + r11 - r22, 1.0 - r00 - r11 + r22], -1
+    )
+    s = 2.0 * torch.sqrt(args.clamp_min(1e-12))  # s_b = 4 * |component b|
+    cands = torch.stack(
+        [
+            torch.stack([0.25 * s[..., 0], (r21 - r12) / s[..., 0], (r02 - r20) / s[..., 0], (r10 - r01) / s[..., 0]], -1),
+            torch.stack([(r21 - r12) / s[..., 1], 0.25 * s[..., 1], (r01 + r10) / s[..., 1], (r02 + r20) / s[..., 1]], -1),
+            torch.stack([(r02 - r20) / s[..., 2], (r01 + r10) / s[..., 2], 0.25 * s[..., 2], (r12 + r21) / s[..., 2]], -1),
+            torch.stack([(r10 - r01) / s[..., 3], (r02 + r20) / s[..., 3], (r12 + r21) / s[..., 3], 0.25 * s[..., 3]], -1),
+        ],
+        -2,
+    )  # [..., 4 branches, 4]
+    branch = args.argmax(-1)
+    q = torch.gather(cands, -2, branch[..., None, None].expand(*branch.shape, 1, 4)).squeeze(-2)
+    return q * torch.where(q[..., :1] < 0, -1.0, 1.0)  # canonical sign: w >= 0
+
+
+def so3_log(R: Tensor) -> Tensor:  # R: [..., 3, 3] -> [..., 3]
+    """Rotation vectors of rotation matrices, through the quaternion (stable at 0 and near pi)."""
+    q = rotmat_to_quat(R)
+    w, v = q[..., 0], q[..., 1:]
+    n2 = (v * v).sum(-1)
+    small = n2 < _SMALL_ANGLE**2
+    n = torch.sqrt(torch.where(small, torch.ones_like(n2), n2))
+    # angle = 2 atan2(|v|, w); factor = angle / |v|, series 2/w (1 - |v|^2 / (3 w^2)) near 0.
+    factor = torch.where(small, 2.0 / w * (1.0 - n2 / (3.0 * w * w)), 2.0 * torch.atan2(n, w) / n)
+    return factor[..., None] * v
+
+
+# ---------------------------------------------------------------------------------------------
+# The module
+# ---------------------------------------------------------------------------------------------
+
+
+def _fill_gaps(times: np.ndarray, poses: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, int, int]:
+    """Poses [F, 4, 4] with invalid steps interpolated from valid ones (ends: nearest valid),
+    plus the first and last valid step (-1, -1 when none is valid)."""
+    good = np.flatnonzero(valid)
+    if len(good) == 0:
+        return np.repeat(np.eye(4)[None], len(times), 0), -1, -1
+    filled = interpolate_poses(times[good], poses[good], times)  # clamps outside [first, last]
+    filled[good] = poses[good]
+    return filled, int(good[0]), int(good[-1])
+
+
+class InstanceTrajectories(nn.Module):
+    """Per-instance, per-step rigid poses (canonical -> world), learnable, interpolated in time."""
+
+    def __init__(
+        self,
+        frame_times: np.ndarray,  # [F] float64 seconds, increasing
+        instance_ids: np.ndarray,  # [Z] int >= 1
+        poses: np.ndarray,  # [Z, F, 4, 4] canonical -> world
+        valid: np.ndarray,  # [Z, F] bool
+        refine: bool = True,
+        span_margin: float | None = None,
+        dtype: torch.dtype = torch.float32,
+    ) -> None:
+        """``refine=False`` freezes the poses (the paper's ablation g). ``span_margin`` (seconds)
+        widens each instance's presence span at both ends (default: half the median step)."""
+        super().__init__()
+        frame_times = np.asarray(frame_times, dtype=np.float64)
+        ids = np.asarray(instance_ids, dtype=np.int64).reshape(-1)
+        poses = np.asarray(poses, dtype=np.float64)
+        valid = np.asarray(valid, dtype=bool)
+        F, Z = len(frame_times), len(ids)
+        if F == 0:
+            raise ValueError("InstanceTrajectories: needs at least one time step")
+        if np.any(np.diff(frame_times) <= 0):
+            raise ValueError("InstanceTrajectories: frame_times must be strictly increasing")
+        if poses.shape != (Z, F, 4, 4) or valid.shape != (Z, F):
+            raise ValueError(f"InstanceTrajectories: poses {poses.shape} / valid {valid.shape} do not match Z={Z}, F={F}")
+        if np.any(ids < 1) or len(np.unique(ids)) != Z:
+            raise ValueError("InstanceTrajectories: instance ids must be unique and >= 1 (0 is the background)")
+        if span_margin is None:
+            span_margin = 0.5 * float(np.median(np.diff(frame_times))) if F > 1 else 0.0
+        filled = np.empty((Z, F, 4, 4))
+        first = np.full(Z, -1, dtype=np.int64)
+        last = np.full(Z, -1, dtype=np.int64)
+        for z in range(Z):
+            filled[z], first[z], last[z] = _fill_gaps(frame_times, poses[z], valid[z])
+
+        self.refine = refine
+        self.span_margin = float(span_margin)
+        self.register_buffer("frame_times", torch.from_numpy(frame_times))  # float64: seconds
+        self.register_buffer("instance_ids", torch.from_numpy(ids))
+        self.register_buffer("span_first", torch.from_numpy(first))  # [Z] first valid step (-1: none)
+        self.register_buffer("span_last", torch.from_numpy(last))  # [Z] last valid step
+        self.register_buffer("base_rotations", torch.from_numpy(filled[..., :3, :3]).to(dtype))  # [Z, F, 3, 3]
+        self.positions = nn.Parameter(torch.from_numpy(filled[..., :3, 3]).to(dtype), requires_grad=refine)
+        self.rotation_deltas = nn.Parameter(torch.zeros(Z, F, 3, dtype=dtype), requires_grad=refine)
+
+    @classmethod
+    def from_instance_tracks(
+        cls, tracks: InstanceTracks, refine: bool = True, span_margin: float | None = None,
+        dtype: torch.dtype = torch.float32,
+    ) -> InstanceTrajectories:
+        """Trajectories of the dynamic instances of ``tracks`` (static instances stay background)."""
+        insts = tracks.instances
+        F = len(tracks.frame_times)
+        poses = np.stack([i.poses for i in insts]) if insts else np.zeros((0, F, 4, 4))
+        valid = np.stack([i.valid for i in insts]) if insts else np.zeros((0, F), bool)
+        ids = np.array([i.instance_id for i in insts], dtype=np.int64)
+        return cls(tracks.frame_times, ids, poses, valid, refine=refine, span_margin=span_margin, dtype=dtype)
+
+    # -- sizes and parameter groups ----------------------------------------------------------
+
+    @property
+    def num_instances(self) -> int:
+        return int(self.instance_ids.shape[0])
+
+    @property
+    def num_steps(self) -> int:
+        return int(self.frame_times.shape[0])
+
+    def position_parameters(self) -> list[nn.Parameter]:
+        """The positions group (empty when ``refine`` is off)."""
+        return [self.positions] if self.refine else []
+
+    def rotation_parameters(self) -> list[nn.Parameter]:
+        """The rotation-correction group (empty when ``refine`` is off)."""
+        return [self.rotation_deltas] if self.refine else []
+
+    def step_rotations(self) -> Tensor:  # -> [Z, F, 3, 3]
+        """Current rotations of every step: ``R0 @ exp(delta)``."""
+        return self.base_rotations @ so3_exp(self.rotation_deltas)
+
+    def step_poses(self) -> Tensor:  # -> [Z, F, 4, 4]
+        """Current canonical-to-world poses of every step (for tracking evaluation and export)."""
+        Z, F = self.num_instances, self.num_steps
+        out = torch.zeros(Z, F, 4, 4, dtype=self.positions.dtype, device=self.positions.device)
+        out[..., :3, :3] = self.step_rotations()
+        out[..., :3, 3] = self.positions
+        out[..., 3, 3] = 1.0
+        return out
+
+    # -- queries at a time -------------------------------------------------------------------
+
+    def _time_value(self, t: float | Tensor) -> float:
+        return float(t.detach().reshape(()).item()) if isinstance(t, Tensor) else float(t)
+
+    @torch.no_grad()
+    def positions_at(self, t: float) -> dict[int, np.ndarray]:
+        """``{instance_id: canonical-frame origin in the world [3]}`` of the instances present at t."""
+        _, trans, present = self.poses_at(t)
+        ids = self.instance_ids.tolist()
+        return {int(ids[k]): trans[k].double().cpu().numpy() for k in range(len(ids)) if bool(present[k])}
+
+    def present_at(self, t: float | Tensor) -> Tensor:  # -> [Z] bool
+        """Which instances exist at time ``t`` (seconds): inside their valid span (+ margin)."""
+        tv = self._time_value(t)
+        has = self.span_first >= 0
+        first = self.frame_times[self.span_first.clamp_min(0)]
+        last = self.frame_times[self.span_last.clamp_min(0)]
+        return has & (tv >= first - self.span_margin) & (tv <= last + self.span_margin)
+
+    def ids_present_at(self, t: float | Tensor) -> Tensor:  # -> [Z'] int64
+        """Instance IDs present at time ``t``."""
+        return self.instance_ids[self.present_at(t)]
+
+    def poses_at(self, t: float | Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """Poses of all instances at time ``t`` (seconds; a float or a scalar tensor).
+
+        Returns ``R`` [Z, 3, 3], ``trans`` [Z, 3] (canonical -> world) and ``present`` [Z] bool.
+        Differentiable w.r.t. the trajectory parameters and, when ``t`` is a tensor that requires
+        grad (a learnable camera time offset), w.r.t. ``t``. Poses of absent instances are the
+        extrapolated/clamped values and must not be used.
+        """
+        present = self.present_at(t)
+        Z = self.num_instances
+        dtype, device = self.positions.dtype, self.positions.device
+        if Z == 0:
+            return torch.zeros(0, 3, 3, dtype=dtype, device=device), torch.zeros(0, 3, dtype=dtype, device=device), present
+        first = self.span_first.clamp_min(0)
+        last = self.span_last.clamp_min(0)
+        # Left step of the bracketing segment, restricted to the instance's span.
+        tdt = self.frame_times.dtype  # float64 unless the module was cast
+        t_tensor = (t.reshape(()).to(device=device, dtype=tdt) if isinstance(t, Tensor)
+                    else torch.tensor(float(t), dtype=tdt, device=device))
+        k_global = torch.searchsorted(self.frame_times, t_tensor.detach().reshape(1), right=True) - 1
+        k0 = torch.minimum(k_global.expand_as(first), (last - 1).clamp_min(0))
+        k0 = torch.maximum(k0, first)
+        k1 = torch.minimum(k0 + 1, last)
+        t0, t1 = self.frame_times[k0], self.frame_times[k1]
+        single = k1 == k0  # one valid step: constant pose
+        dt = torch.where(single, torch.ones_like(t0), t1 - t0)
+        w = torch.where(single, torch.zeros_like(t0), (t_tensor - t0) / dt).to(dtype)  # [Z]
+
+        zi = torch.arange(Z, device=device)
+        p0, p1 = self.positions[zi, k0], self.positions[zi, k1]
+        trans = p0 + w[:, None] * (p1 - p0)
+        R0 = self.base_rotations[zi, k0] @ so3_exp(self.rotation_deltas[zi, k0])
+        R1 = self.base_rotations[zi, k1] @ so3_exp(self.rotation_deltas[zi, k1])
+        rel = so3_log(R0.transpose(-1, -2) @ R1)  # [Z, 3] geodesic from step k0 to k1
+        R = R0 @ so3_exp(w[:, None] * rel)
+        return R, trans, present
+
+    def forward(self, t: float | Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """Same as :meth:`poses_at`."""
+        return self.poses_at(t)
+
+    def pose_matrices_at(self, t: float | Tensor) -> tuple[Tensor, Tensor]:
+        """``(T [Z, 4, 4], present [Z])``: the poses of :meth:`poses_at` as homogeneous matrices."""
+        R, trans, present = self.poses_at(t)
+        T = torch.zeros(R.shape[0], 4, 4, dtype=R.dtype, device=R.device)
+        T[:, :3, :3] = R
+        T[:, :3, 3] = trans
+        T[:, 3, 3] = 1.0
+        return T, present
