@@ -10,11 +10,8 @@ from idsplat_ns.data.lidar import LidarSweep, rays_from_points
 from idsplat_ns.data.scene import Scene
 from idsplat_ns.instances.tracks import InstanceTrack, InstanceTracks
 from idsplat_ns.model.initialisation import InitConfig
-from idsplat_ns.model.instance_init import (
-    instance_exclusion,
-    instance_initial_points,
-    poses_at_times,
-)
+from idsplat_ns.data.geometry import interpolate_poses
+from idsplat_ns.model.instance_init import instance_exclusion, instance_initial_points
 
 F = 5
 TIMES = np.arange(F) * 0.1
@@ -80,9 +77,9 @@ def _scene(seed: int = 0):
     return scene, tracks, ground, lambda im: pixels[im.frame_index]
 
 
-def test_poses_at_times_interpolates_and_extrapolates():
+def test_interpolate_poses_interpolates_and_extrapolates():
     steps = np.stack([_box_pose(k) for k in range(F)])
-    out = poses_at_times(TIMES, steps, np.array([0.1, 0.25, -0.05, 0.45]))
+    out = interpolate_poses(TIMES, steps, np.array([0.1, 0.25, -0.05, 0.45]), extrapolate=True)
     assert np.allclose(out[0], _box_pose(1), atol=1e-12)
     assert np.allclose(out[1], _box_pose(2.5), atol=1e-12)  # the motion is linear in k
     assert np.allclose(out[2], _box_pose(-0.5), atol=1e-12)  # constant-velocity extrapolation

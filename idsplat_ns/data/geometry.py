@@ -116,12 +116,13 @@ def slerp_quat(q0: np.ndarray, q1: np.ndarray, w: np.ndarray) -> np.ndarray:
     return q / np.linalg.norm(q, axis=-1, keepdims=True)
 
 
-def interpolate_poses(times: np.ndarray, poses: np.ndarray, query: np.ndarray) -> np.ndarray:
+def interpolate_poses(times: np.ndarray, poses: np.ndarray, query: np.ndarray, extrapolate: bool = False) -> np.ndarray:
     """Interpolate poses [T, 4, 4] known at increasing ``times`` [T] at ``query`` [M] times.
 
-    Translation is linear and rotation is slerped between the bracketing samples; queries outside
-    the span are clamped to the end poses (a sensor pose, unlike an object, is always defined).
-    Returns [M, 4, 4].
+    Translation is linear and rotation is slerped between the bracketing samples. Outside the
+    span, queries are clamped to the end poses (a sensor pose is always defined) or, with
+    ``extrapolate``, continued at the end segments' constant velocity (the slerp formula
+    extrapolates for weights outside [0, 1]). Returns [M, 4, 4].
     """
     times = np.asarray(times, dtype=np.float64)
     query = np.asarray(query, dtype=np.float64)
@@ -129,7 +130,9 @@ def interpolate_poses(times: np.ndarray, poses: np.ndarray, query: np.ndarray) -
         return np.repeat(poses[:1], len(query), 0)
     idx = np.clip(np.searchsorted(times, query, side="right") - 1, 0, len(times) - 2)
     span = times[idx + 1] - times[idx]
-    w = np.clip((query - times[idx]) / np.where(span > 0, span, 1.0), 0.0, 1.0)
+    w = (query - times[idx]) / np.where(span > 0, span, 1.0)
+    if not extrapolate:
+        w = np.clip(w, 0.0, 1.0)
     q = rotmat_to_quat(poses[:, :3, :3])
     R = quat_to_rotmat(slerp_quat(q[idx], q[idx + 1], w))
     t = (1 - w)[:, None] * poses[idx, :3, 3] + w[:, None] * poses[idx + 1, :3, 3]

@@ -17,6 +17,7 @@ from collections.abc import Iterable
 
 import numpy as np
 
+from idsplat_ns.data.geometry import interpolate_poses
 from idsplat_ns.data.scene import Scene
 from idsplat_ns.data.tracks import ObjectTrack
 from idsplat_ns.instances.tracks import (
@@ -24,7 +25,6 @@ from idsplat_ns.instances.tracks import (
     InstanceTracks,
     fill_invalid_poses,
 )
-from idsplat_ns.model.instance_init import poses_at_times
 
 
 def _box_points(
@@ -57,7 +57,7 @@ def _box_points(
             counts[sweep.frame_index] = 0
             continue
         # Box pose at each ray's time (within the annotated span; extrapolated by at most a sweep).
-        T = poses_at_times(track.times, track.poses, times[near])
+        T = interpolate_poses(track.times, track.poses, times[near], extrapolate=True)
         local = np.einsum("nji,nj->ni", T[:, :3, :3], points[near] - T[:, :3, 3])
         inside = np.all(np.abs(local) <= half, axis=1) & (local[:, 2] >= -size[2] / 2 + ground_clearance)
         chunks.append(local[inside])

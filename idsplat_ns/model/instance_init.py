@@ -21,12 +21,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from idsplat_ns.data.camera import CameraImage
-from idsplat_ns.data.geometry import (
-    make_pose,
-    quat_to_rotmat,
-    rotmat_to_quat,
-    slerp_quat,
-)
+from idsplat_ns.data.geometry import interpolate_poses
 from idsplat_ns.data.scene import Scene
 from idsplat_ns.instances.tracks import InstanceTrack, InstanceTracks
 from idsplat_ns.model.initialisation import (
@@ -62,24 +57,6 @@ class InstanceInitialPoints(InitialPoints):
     instance_ids: np.ndarray  # [N] int64
 
 
-def poses_at_times(
-    step_times: np.ndarray,  # [S] increasing seconds of the valid steps
-    step_poses: np.ndarray,  # [S, 4, 4]
-    query: np.ndarray,  # [M] seconds
-) -> np.ndarray:  # [M, 4, 4]
-    """Poses at query times: linear/slerp between the bracketing steps, extrapolated at constant
-    velocity beyond the ends (as the trajectories do inside their span margin)."""
-    query = np.asarray(query, dtype=np.float64)
-    if len(step_times) == 1:
-        return np.repeat(step_poses[:1], len(query), 0)
-    idx = np.clip(np.searchsorted(step_times, query, side="right") - 1, 0, len(step_times) - 2)
-    w = (query - step_times[idx]) / (step_times[idx + 1] - step_times[idx])
-    q = rotmat_to_quat(step_poses[:, :3, :3])
-    R = quat_to_rotmat(slerp_quat(q[idx], q[idx + 1], w))  # the slerp formula extrapolates for w outside [0, 1]
-    t = (1 - w)[:, None] * step_poses[idx, :3, 3] + w[:, None] * step_poses[idx + 1, :3, 3]
-    return make_pose(R, t)
-
-
 def _default_span_margin(frame_times: np.ndarray) -> float:
     return 0.5 * float(np.median(np.diff(frame_times))) if len(frame_times) > 1 else 0.0
 
@@ -106,7 +83,7 @@ def instance_exclusion(
         step_t, step_T = times_f[good], inst.poses[good]
         t_lo, t_hi = step_t[0] - margin_t, step_t[-1] + margin_t
         # World AABB of the box over the whole window (cheap pre-filter before per-point poses).
-        window = poses_at_times(step_t, step_T, np.concatenate([[t_lo], step_t, [t_hi]]))
+        window = interpolate_poses(step_t, step_T, np.concatenate([[t_lo], step_t, [t_hi]]), extrapolate=True)
         corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
         world = np.einsum("kij,cj->kci", window[:, :3, :3], corners) + window[:, None, :3, 3]
         boxes.append((lo, hi, step_t, step_T, t_lo, t_hi, world.reshape(-1, 3).min(0), world.reshape(-1, 3).max(0)))
@@ -121,7 +98,7 @@ def instance_exclusion(
             )
             if len(cand) == 0:
                 continue
-            T = poses_at_times(step_t, step_T, times[cand])
+            T = interpolate_poses(step_t, step_T, times[cand], extrapolate=True)
             local = np.einsum("nji,nj->ni", T[:, :3, :3], points[cand] - T[:, :3, 3])  # R^T (p - t)
             out[cand[np.all((local >= lo) & (local <= hi), axis=1)]] = True
         return out

@@ -75,6 +75,7 @@ class IDSplatPipeline(VanillaPipeline):
                 result[f"{key}_num_images"] = len(values)
         result["num_images"] = len(per_image)
         result["render_mpix_per_s"] = result.pop("num_rays_per_sec") / 1e6
+        result.pop("num_rays_per_sec_std", None)
         result.update(self._tracking_metrics())
         if "lpips" not in result and step is None:
             # Only for ns-eval's JSON (step None): the trainer logs metrics as scalars.

@@ -44,7 +44,8 @@ def main() -> None:
             if key in results:
                 n = results.get(f"{key}_num_images")
                 label = name + (f" [{n} images]" if n is not None else "")
-                table.add_row(label, f"{results[key]:.4f}", f"{results.get(key + '_std', float('nan')):.4f}")
+                std = results.get(key + "_std")
+                table.add_row(label, f"{results[key]:.4f}", "" if std is None else f"{std:.4f}")
         console = Console()
         console.print(table)
         if "lpips_note" in results:
