@@ -15,6 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
+from idsplat_ns.data.waymo.range_image import read_varint
+
 VEHICLE = 1
 
 
@@ -30,29 +32,18 @@ class MotionTrack:
     valid: np.ndarray  # [T] bool
 
 
-def _varint(buf: bytes, pos: int) -> tuple[int, int]:
-    result, shift = 0, 0
-    while True:
-        b = buf[pos]
-        pos += 1
-        result |= (b & 0x7F) << shift
-        if not b & 0x80:
-            return result, pos
-        shift += 7
-
-
 def _fields(buf: bytes):
     """Yield ``(field_number, wire_type, value)``; value is int, bytes (length-delimited) or raw 4/8 bytes."""
     pos = 0
     while pos < len(buf):
-        key, pos = _varint(buf, pos)
+        key, pos = read_varint(buf, pos)
         field, wire = key >> 3, key & 7
         if wire == 0:
-            value, pos = _varint(buf, pos)
+            value, pos = read_varint(buf, pos)
         elif wire == 1:
             value, pos = buf[pos : pos + 8], pos + 8
         elif wire == 2:
-            n, pos = _varint(buf, pos)
+            n, pos = read_varint(buf, pos)
             value, pos = buf[pos : pos + n], pos + n
         elif wire == 5:
             value, pos = buf[pos : pos + 4], pos + 4

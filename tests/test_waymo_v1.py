@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from idsplat_ns.data.tracks import box_corners
+from idsplat_ns.data.waymo.projection_check import box_projection_errors
 from idsplat_ns.data.waymo import load_segment
 from idsplat_ns.data.waymo.calibration import WAYMO_FROM_OPENCV
 from idsplat_ns.data.waymo.proto import build_file_descriptor
@@ -72,26 +72,11 @@ def test_laser_labels_become_tracks(scene):
 
 def _projection_errors(scene, max_r2: float | None = None) -> np.ndarray:
     """|edge error| (px) of each box's projected corners vs Waymo's projected_lidar_labels."""
-    errors = []
+    out = []
     for im in scene.images:
-        labels = im.metadata["projected_lidar_labels"]
-        W, H = im.intrinsics.width, im.intrinsics.height
-        for tr in scene.tracks:
-            box = labels.get(f"{tr.track_id}_{im.camera}")
-            if box is None:
-                continue
-            corners = box_corners(tr.poses[0], tr.metadata["sizes"][0])
-            proj = im.project(corners)
-            if np.any(proj.depth <= 0.1):
-                continue
-            if max_r2 is not None:
-                cam = (corners - im.camera_to_world[:3, 3]) @ im.camera_to_world[:3, :3]
-                if np.max(np.sum((cam[:, :2] / cam[:, 2:]) ** 2, 1)) > max_r2:
-                    continue
-            lo = np.clip(proj.uv.min(0), 0, [W, H])
-            hi = np.clip(proj.uv.max(0), 0, [W, H])
-            errors.append(np.abs(np.concatenate([lo, hi]) - box))
-    return np.array(errors)
+        errors, r2 = box_projection_errors(im, scene.tracks)
+        out.append(errors if max_r2 is None else errors[r2 <= max_r2])
+    return np.concatenate(out)
 
 
 def test_box_projection_matches_waymo_projected_labels(scene):

@@ -27,7 +27,7 @@ SWEEP_SECONDS = 0.1
 # Decoding it by hand is ~100x faster than the pure-python protobuf runtime on ~10^6 floats.
 
 
-def _read_varint(buf: bytes, pos: int) -> tuple[int, int]:
+def read_varint(buf: bytes, pos: int) -> tuple[int, int]:
     result, shift = 0, 0
     while True:
         b = buf[pos]
@@ -53,15 +53,15 @@ def _encode_varint(value: int) -> bytes:
 def _parse_shape(buf: bytes) -> list[int]:
     dims, pos = [], 0
     while pos < len(buf):
-        key, pos = _read_varint(buf, pos)
+        key, pos = read_varint(buf, pos)
         if key >> 3 == 1 and key & 7 == 0:
-            v, pos = _read_varint(buf, pos)
+            v, pos = read_varint(buf, pos)
             dims.append(v)
         elif key >> 3 == 1 and key & 7 == 2:  # packed dims
-            n, pos = _read_varint(buf, pos)
+            n, pos = read_varint(buf, pos)
             end = pos + n
             while pos < end:
-                v, pos = _read_varint(buf, pos)
+                v, pos = read_varint(buf, pos)
                 dims.append(v)
         else:
             raise ValueError(f"unexpected field {key >> 3} in MatrixShape")
@@ -72,17 +72,17 @@ def parse_matrix_float(serialized: bytes) -> np.ndarray:
     """A serialized MatrixFloat as a float32 array of its shape (raises ValueError if malformed)."""
     data, dims, pos = [], None, 0
     while pos < len(serialized):
-        key, pos = _read_varint(serialized, pos)
+        key, pos = read_varint(serialized, pos)
         number, wire = key >> 3, key & 7
         if number == 1 and wire == 2:
-            n, pos = _read_varint(serialized, pos)
+            n, pos = read_varint(serialized, pos)
             data.append(np.frombuffer(serialized, dtype="<f4", count=n // 4, offset=pos))
             pos += n
         elif number == 1 and wire == 5:  # unpacked float, legal on the wire
             data.append(np.frombuffer(serialized, dtype="<f4", count=1, offset=pos))
             pos += 4
         elif number == 2 and wire == 2:
-            n, pos = _read_varint(serialized, pos)
+            n, pos = read_varint(serialized, pos)
             dims = _parse_shape(serialized[pos : pos + n])
             pos += n
         else:
