@@ -1,0 +1,283 @@
+"""Lidar path: ray sampling, time-binned rendering against analytic ranges, head, losses, metrics."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from idsplat_ns.data.lidar import LidarSweep
+from idsplat_ns.eval.lidar_metrics import chamfer_distance, lidar_metrics
+from idsplat_ns.model.lidar_head import LidarHead, LidarHeadOutput
+from idsplat_ns.model.lidar_losses import LidarLossWeights, lidar_losses
+from idsplat_ns.model.lidar_render import (
+    LidarRayBatch,
+    ray_angles,
+    render_lidar_rays,
+    sample_rays,
+    time_bins,
+)
+from idsplat_ns.render import LidarRender
+
+
+def _wall(
+    x: float, half_y: float = 4.0, half_z: float = 2.0, step: float = 0.1
+) -> torch.Tensor:
+    """Means [N, 3] of a dense grid on the plane x = ``x``."""
+    ys, zs = torch.meshgrid(
+        torch.arange(-half_y, half_y + 1e-3, step),
+        torch.arange(-half_z, half_z + 1e-3, step),
+        indexing="ij",
+    )
+    return torch.stack(
+        [torch.full((ys.numel(),), x), ys.reshape(-1), zs.reshape(-1)], 1
+    )
+
+
+def _gaussians(means: torch.Tensor, feature_dim: int = 13) -> dict:
+    n = means.shape[0]
+    return {
+        "means": means,
+        "quats": torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
+        "scales": torch.tensor([[0.01, 0.1, 0.1]]).repeat(n, 1),
+        "opacities": torch.full((n,), 0.95),
+        "features": torch.linspace(0, 1, feature_dim)[None].repeat(n, 1),
+    }
+
+
+def _yaw(deg: float) -> np.ndarray:
+    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _dirs(az_deg, el_deg) -> np.ndarray:
+    az, el = np.radians(az_deg), np.radians(el_deg)
+    return np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], 1)
+
+
+def _sweep(origins, directions, times, ranges=None, returned=None) -> LidarSweep:
+    n = len(origins)
+    pose = np.eye(4)
+    pose[:3, :3] = _yaw(
+        35.0
+    )  # a rotated sensor: angles must be taken in the sensor frame
+    pose[:3, 3] = origins.mean(0)
+    return LidarSweep(
+        frame_index=0, time=float(np.mean(times)), raw_timestamp=0.0, sensor_to_world=pose,
+        origins=origins, directions=directions,
+        ranges=np.full(n, 10.0) if ranges is None else ranges, intensities=np.full(n, 0.5, np.float32),
+        times=np.asarray(times, np.float64), returned=np.ones(n, bool) if returned is None else returned,
+        sensor_ids=np.zeros(n, np.int16),
+    )  # fmt: skip
+
+
+def test_ray_angles_match_the_sensor_frame_convention():
+    rot = torch.tensor(_yaw(35.0), dtype=torch.float32)
+    # Sensor-frame direction at azimuth 20, elevation -7 degrees, rotated into the world.
+    d_sensor = torch.tensor(
+        _dirs(np.array([20.0]), np.array([-7.0])), dtype=torch.float32
+    )
+    az, el = ray_angles(d_sensor @ rot.T, rot)
+    assert math.degrees(az.item()) == pytest.approx(20.0, abs=1e-4)
+    assert math.degrees(el.item()) == pytest.approx(-7.0, abs=1e-4)
+
+
+def test_sample_rays_subsamples_uniformly_without_replacement():
+    n = 1000
+    origins = np.zeros((n, 3))
+    sweep = _sweep(origins, _dirs(np.linspace(-10, 10, n), np.zeros(n)), np.linspace(0, 0.1, n),
+                   returned=np.arange(n) % 2 == 0)  # fmt: skip
+    batch = sample_rays(sweep, 200, torch.Generator().manual_seed(0))
+    assert batch.num_rays == 200 and batch.times.dtype == torch.float64
+    assert len(set(batch.times.tolist())) == 200  # no repeats
+    assert (
+        70 < int(batch.returned.sum()) < 130
+    )  # returned and dropped rays both sampled
+    assert sample_rays(sweep, 5000).num_rays == n
+
+
+def test_wall_range_is_the_analytic_plane_distance_from_each_rays_origin():
+    # Sensor moving along x during the sweep: origins differ by up to 1 m; four time bins.
+    n = 64
+    rng = np.random.default_rng(0)
+    times = np.linspace(0.0, 0.1, n)
+    origins = np.stack([10.0 * times, np.zeros(n), np.zeros(n)], 1)  # 10 m/s
+    az, el = rng.uniform(-8, 8, n), rng.uniform(-5, 5, n)
+    dirs = _dirs(az, el)
+    sweep = _sweep(origins, dirs, times)
+    rays = sample_rays(sweep, n)
+    gs = _gaussians(_wall(20.0))
+    out = render_lidar_rays(
+        lambda t: gs,
+        rays,
+        torch.tensor(sweep.sensor_to_world, dtype=torch.float32),
+        num_time_bins=4,
+    )
+    expect = torch.tensor((20.0 - origins[:, 0]) / dirs[:, 0], dtype=torch.float32)
+    assert (out.alpha[:, 0] > 0.99).all()
+    torch.testing.assert_close(out.range[:, 0], expect, atol=0.03, rtol=0)
+    torch.testing.assert_close(out.median_range[:, 0], expect, atol=0.1, rtol=0)
+    # The composited features are the (constant) Gaussian features times alpha.
+    torch.testing.assert_close(
+        out.features, out.alpha * gs["features"][:1], atol=1e-4, rtol=0
+    )
+
+
+def test_time_bins_follow_the_moving_cluster_and_a_changing_gaussian_set():
+    # A wall moving at 4 m/s along x; an extra blocker at x = 8 exists only for t > 0.5 s.
+    wall = _wall(10.0, half_y=4.0, half_z=1.0)
+    blocker = _wall(8.0, half_y=0.5, half_z=0.5)
+    seen_times = []
+
+    def posed_at(t: float) -> dict:
+        seen_times.append(t)
+        means = wall + torch.tensor([4.0 * t, 0.0, 0.0])
+        if t > 0.5:
+            means = torch.cat([means, blocker])
+        return _gaussians(means)
+
+    # Interleaved times so that scattering back into ray order is exercised.
+    times = np.array([0.0, 1.0, 0.1, 0.9, 0.2, 1.0])
+    dirs = _dirs(np.array([0.0, 0.0, 1.0, 1.0, -1.0, 10.0]), np.zeros(6))
+    sweep = _sweep(np.zeros((6, 3)), dirs, times)
+    rays = sample_rays(sweep, 6)
+    out = render_lidar_rays(
+        posed_at,
+        rays,
+        torch.tensor(sweep.sensor_to_world, dtype=torch.float32),
+        num_time_bins=2,
+    )
+    assert seen_times == pytest.approx([0.25, 0.75])  # bin centres
+    # Bin 0 (t < 0.5): wall at 10 + 4 * 0.25 = 11 m; bin 1: blocker at 8 m, except the ray at
+    # 10 degrees azimuth, which passes beside the blocker to the wall at 13 m.
+    plane = np.array([11.0, 8.0, 11.0, 8.0, 11.0, 13.0]) / dirs[:, 0]
+    torch.testing.assert_close(
+        out.range[:, 0], torch.tensor(plane, dtype=torch.float32), atol=0.03, rtol=0
+    )
+    bins, centres = time_bins(rays.times, 2)
+    assert bins.tolist() == [0, 1, 0, 1, 0, 1] and centres.tolist() == pytest.approx(
+        [0.25, 0.75]
+    )
+
+
+def test_losses_and_gradients_reach_gaussian_means_and_the_head():
+    torch.manual_seed(0)
+    n = 32
+    times = np.linspace(0.0, 0.1, n)
+    dirs = _dirs(np.linspace(-6, 6, n), np.linspace(-3, 3, n))
+    returned = np.arange(n) % 4 != 0
+    sweep = _sweep(
+        np.zeros((n, 3)),
+        dirs,
+        times,
+        ranges=np.where(returned, 19.0 / dirs[:, 0], 0.0),
+        returned=returned,
+    )
+    rays = sample_rays(sweep, n)
+    means = _wall(20.0).requires_grad_(True)
+    gs = _gaussians(means) | {"means": means}
+    head = LidarHead()
+    out = render_lidar_rays(
+        lambda t: gs, rays, torch.tensor(sweep.sensor_to_world, dtype=torch.float32)
+    )
+    losses = lidar_losses(out, head(out.features), rays, LidarLossWeights())
+    # Range off by about 1 m on every returned ray: depth loss 0.1 * ~1.
+    assert losses["lidar_depth"].item() == pytest.approx(0.1, rel=0.1)
+    assert all(v.item() > 0 for v in losses.values())
+    sum(losses.values()).backward()
+    assert means.grad is not None and means.grad[:, 0].abs().sum() > 0
+    # Pulling the wall nearer (x decreasing) reduces the depth loss: grad along +x is positive.
+    assert means.grad[:, 0].sum() > 0
+    assert all(p.grad is not None and p.grad.abs().sum() > 0 for p in head.parameters())
+
+
+def _constructed(range_pred, intensity_pred, drop_logit, ranges, intensities, returned):
+    r = len(ranges)
+    rays = LidarRayBatch(torch.zeros(r, 3), torch.tensor([[1.0, 0, 0]]).repeat(r, 1), torch.tensor(ranges),
+                         torch.tensor(intensities), torch.zeros(r, dtype=torch.float64), torch.tensor(returned))  # fmt: skip
+    render = LidarRender(features=torch.zeros(r, 13), alpha=torch.ones(r, 1), range=torch.tensor(range_pred)[:, None],
+                         median_range=torch.tensor(range_pred)[:, None])  # fmt: skip
+    head = LidarHeadOutput(
+        intensity=torch.tensor(intensity_pred), ray_drop_logit=torch.tensor(drop_logit)
+    )
+    return render, head, rays
+
+
+def test_losses_are_zero_on_perfect_predictions_and_match_closed_forms():
+    gt = {
+        "ranges": [5.0, 7.0, 0.0],
+        "intensities": [0.2, 0.6, 0.0],
+        "returned": [True, True, False],
+    }
+    perfect = lidar_losses(
+        *_constructed([5.0, 7.0, 123.0], [0.2, 0.6, 0.9], [-30.0, -30.0, 30.0], **gt)
+    )
+    for v in perfect.values():
+        assert v.item() == pytest.approx(0.0, abs=1e-9)
+    # Range off by 2 m on one of two returned rays; intensity off by 0.1 on both; logits 0.
+    off = lidar_losses(
+        *_constructed([7.0, 7.0, 0.0], [0.3, 0.5, 0.0], [0.0, 0.0, 0.0], **gt)
+    )
+    assert off["lidar_depth"].item() == pytest.approx(0.1 * 4.0 / 2)
+    assert off["lidar_intensity"].item() == pytest.approx(1.0 * 0.01)
+    assert off["lidar_ray_drop"].item() == pytest.approx(0.1 * math.log(2.0))
+    # Wrong drop decision: the no-return ray predicted as returned costs BCE 30 / 3 rays.
+    wrong = lidar_losses(
+        *_constructed([5.0, 7.0, 0.0], [0.2, 0.6, 0.0], [-30.0, -30.0, -30.0], **gt)
+    )
+    assert wrong["lidar_ray_drop"].item() == pytest.approx(0.1 * 30.0 / 3, rel=1e-6)
+
+
+def test_head_shapes_and_ranges():
+    head = LidarHead(feature_dim=13, hidden=32)
+    assert [m.out_features for m in head.mlp if isinstance(m, torch.nn.Linear)] == [
+        32,
+        2,
+    ]
+    out = head(torch.randn(7, 13) * 10)
+    assert out.intensity.shape == (7,) and out.ray_drop_logit.shape == (7,)
+    assert ((out.intensity > 0) & (out.intensity < 1)).all()
+    torch.testing.assert_close(out.ray_drop_prob, torch.sigmoid(out.ray_drop_logit))
+
+
+def test_chamfer_distance_closed_form():
+    a = np.array([[0.0, 0.0, 0.0]])
+    b = np.array([[1.0, 0.0, 0.0], [3.0, 0.0, 0.0]])
+    # a -> b: 1; b -> a: (1 + 3) / 2 = 2; mean of both directions 1.5.
+    assert chamfer_distance(a, b) == pytest.approx(1.5)
+    assert chamfer_distance(b, a) == pytest.approx(1.5)
+    pts = np.random.default_rng(0).normal(size=(50, 3))
+    assert chamfer_distance(pts, pts) == 0.0
+    assert math.isnan(chamfer_distance(np.zeros((0, 3)), b))
+
+
+def test_lidar_metrics_on_hand_made_rays():
+    x = np.array([1.0, 0.0, 0.0])
+    origins = np.zeros((5, 3))
+    directions = np.tile(x, (5, 1))
+    gt_returned = np.array([True, True, True, False, False])
+    gt_range = np.array([10.0, 10.0, 10.0, 0.0, 0.0])
+    gt_int = np.array([0.5, 0.5, 0.5, 0.0, 0.0])
+    pred_range = np.array([11.0, 13.0, 10.0, 10.0, 10.0])
+    pred_int = np.array([0.6, 0.5, 0.3, 0.0, 0.0])
+    pred_drop = np.array(
+        [0.1, 0.2, 0.9, 0.8, 0.3]
+    )  # ray 2 wrongly dropped, ray 4 wrongly returned
+    m = lidar_metrics(
+        pred_range,
+        pred_int,
+        pred_drop,
+        gt_range,
+        gt_int,
+        gt_returned,
+        origins,
+        directions,
+    )
+    assert m["depth_median_sq"] == pytest.approx(
+        np.median([1.0, 9.0])
+    )  # rays 0 and 1 only
+    assert m["intensity_rmse"] == pytest.approx(math.sqrt((0.01 + 0.0 + 0.04) / 3))
+    assert m["ray_drop_accuracy"] == pytest.approx(3 / 5)
+    # Predicted points at x = 11, 13, 10 (ray 4); GT points all at x = 10.
+    # pred -> gt: (1 + 3 + 0) / 3; gt -> pred: 0 (the ray-4 point sits at x = 10).
+    assert m["chamfer"] == pytest.approx(0.5 * (4 / 3 + 0.0))
