@@ -44,10 +44,11 @@ def write_pth(site_packages: str | None = None) -> str:
     import sysconfig
     from pathlib import Path
 
+    from idsplat_ns.atomic import atomic_path
+
     target = Path(site_packages or sysconfig.get_paths()["purelib"]) / PTH_NAME
-    tmp = target.with_suffix(".pth.tmp")
-    tmp.write_text("import idsplat_ns._compat.startup as _idsplat_startup; _idsplat_startup.install()\n")
-    tmp.replace(target)
+    with atomic_path(target) as tmp:
+        tmp.write_text("import idsplat_ns._compat.startup as _idsplat_startup; _idsplat_startup.install()\n")
     return str(target)
 
 

@@ -12,6 +12,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from idsplat_ns.errors import IDSplatError
+from idsplat_ns.atomic import atomic_path
 from idsplat_ns.eval.tracking import Track, frame_sort_key
 
 
@@ -63,7 +64,6 @@ def plot_trajectories(
         _panel(fig.add_subplot(rows, cols, k + 1), gt, pred, name)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    fig.savefig(tmp, format="png")
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
     return path

@@ -8,20 +8,17 @@ folder and renamed into place, so a run killed midway leaves at most a temporary
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import json
 import os
 import shutil
-import uuid
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 
+from idsplat_ns.atomic import TMP_MARK, atomic_path  # noqa: F401 (re-exported for the stage caches)
 from idsplat_ns.data.scene import Scene
 
-TMP_MARK = ".tmp-"
 
 
 def hash_json(obj) -> str:
@@ -54,27 +51,6 @@ def scene_fingerprint(scene: Scene) -> str:
         for arr in (sw.origins, sw.directions, sw.ranges, sw.returned):
             h.update(np.ascontiguousarray(arr).tobytes())
     return h.hexdigest()
-
-
-@contextlib.contextmanager
-def atomic_path(final: Path) -> Iterator[Path]:
-    """Yield a temporary path next to ``final``; on success it is renamed to ``final`` (files and
-    folders alike), on any error it is removed."""
-    final = Path(final)
-    final.parent.mkdir(parents=True, exist_ok=True)
-    tmp = final.with_name(f"{final.name}{TMP_MARK}{os.getpid()}-{uuid.uuid4().hex[:8]}")
-    try:
-        yield tmp
-        if final.is_dir():  # another process finished first: keep theirs
-            shutil.rmtree(tmp, ignore_errors=True)
-        else:
-            os.replace(tmp, final)
-    except BaseException:
-        if tmp.is_dir():
-            shutil.rmtree(tmp, ignore_errors=True)
-        elif tmp.exists():
-            tmp.unlink()
-        raise
 
 
 def _pid_alive(pid: int) -> bool:
