@@ -10,6 +10,20 @@ REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = REPO.parent / "shared" / "data"
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _private_cache(tmp_path_factory):
+    """Generated scenes and stage caches go to a per-session folder, never the user's cache."""
+    import os
+
+    previous = os.environ.get("IDSPLAT_CACHE")
+    os.environ["IDSPLAT_CACHE"] = str(tmp_path_factory.mktemp("idsplat_cache"))
+    yield
+    if previous is None:
+        os.environ.pop("IDSPLAT_CACHE", None)
+    else:
+        os.environ["IDSPLAT_CACHE"] = previous
+
+
 @pytest.fixture(scope="session")
 def shared_data() -> Path:
     if not SHARED_DATA.is_dir():

@@ -16,14 +16,16 @@ from pathlib import Path
 
 import numpy as np
 
+from idsplat_ns import __version__
 from idsplat_ns.atomic import TMP_MARK, atomic_path  # noqa: F401 (re-exported for the stage caches)
 from idsplat_ns.data.scene import Scene
 
 
 
 def hash_json(obj) -> str:
-    """Short stable hash of a JSON-serialisable object (paths and tuples are stringified)."""
-    text = json.dumps(obj, sort_keys=True, default=str)
+    """Short stable hash of a JSON-serialisable object (paths and tuples are stringified) and of
+    the package version, so that a new release never reuses caches of another one's algorithms."""
+    text = json.dumps({"idsplat_ns": __version__, "key": obj}, sort_keys=True, default=str)
     return hashlib.blake2b(text.encode(), digest_size=10).hexdigest()
 
 
