@@ -39,6 +39,8 @@ _LOG_T_MIN = math.log(TRANSMITTANCE_MIN)
 _LOG_HALF = math.log(0.5)
 _T_CLAMP = -math.log(ALPHA_MAX)  # exponent at which alpha reaches the 0.999 clamp
 _T_SKIP = -math.log(ALPHA_MIN)  # exponent beyond which alpha < 1/255 is skipped
+_ALPHA_CLAMPED = ALPHA_MAX * (1.0 - 1e-6)  # alpha at or above it was clamped (below any rounding of 0.999)
+_DROPPED_T = 1e-6  # between the T of dropped rows (< 1e-9) and of live ones (> 1e-4)
 _SENTINEL_EXPONENT = 1e30  # padding rows: alpha = 0
 _MIN_BLOCK_ROWS = 32  # rows per block at least, so per-tile work (D values per sample) stays small
 DEFAULT_BLOCK_ELEMS = 1 << 18  # (row, sample) values per block: 1 MiB float32 per temporary
@@ -104,8 +106,15 @@ class CompositePlan:
 class _Block:
     tiles: Tensor  # [Ta] tile indices
     rows: Tensor  # [Ta, L] intersection rows (I = sentinel)
+    feats: Tensor  # [Ta, L, D] feature rows of the intersections (gathered once, reused backward)
     alpha: Tensor  # [Ta, L, S]
     trans: Tensor  # [Ta, L, S] transmittance before the row (0 once dropped)
+
+
+def _below(value: float, dtype: torch.dtype) -> float:
+    """The largest number of ``dtype`` below ``value``: ``x > _below(v)`` is ``x >= v`` there."""
+    v = torch.tensor(value, dtype=dtype)
+    return torch.nextafter(v, torch.tensor(-math.inf, dtype=dtype)).item()
 
 
 def _exponents(coeffs: Tensor, basis: Tensor, tiles: Tensor) -> Tensor:  # coeffs: [Ta, L, 6]
@@ -142,6 +151,10 @@ class TileComposite(torch.autograd.Function):
         counts = offsets[1:] - offsets[:-1]
         tiles = torch.nonzero(counts > 0).squeeze(1)
         carry = torch.zeros(tiles.numel(), slots, device=device, dtype=dtype)  # log T so far
+        # Skipped samples and dropped rows become exact zeros by a threshold pass *after* exp:
+        # exp of -inf or of underflowing arguments takes a slow path (3-7x) on CPU, so the
+        # arguments are kept finite and well above the underflow range.
+        keep_alpha_above = _below(ALPHA_MIN, dtype)  # alpha >= 1/255 kept
         ranks = torch.arange(max(1, int(counts.max())) if n_tiles else 1, device=device)
         start = 0
         while tiles.numel() > 0:
@@ -150,10 +163,11 @@ class TileComposite(torch.autograd.Function):
             lb = min(max(_MIN_BLOCK_ROWS, plan.block_elems // (ta * slots)), int(left.max()))
             rows = offsets[tiles][:, None] + start + ranks[None, :lb]
             rows = torch.where(ranks[None, :lb] < left[:, None], rows, n_isect)
-            t = _exponents(coeffs_ext[rows], basis, tiles)  # -log alpha, [Ta, L, S]
-            t.clamp_min_(_T_CLAMP)
-            t.masked_fill_(t > _T_SKIP, math.inf)
-            alpha = t.neg_().exp_()
+            rows_flat = rows.reshape(-1)
+            t = _exponents(coeffs_ext.index_select(0, rows_flat).view(ta, lb, 6), basis, tiles)
+            t.neg_().clamp_(-_T_SKIP - 1.0, -_T_CLAMP)  # log alpha, [Ta, L, S]
+            # threshold (not masked_fill with a bool mask): several times faster on CPU.
+            alpha = torch.nn.functional.threshold_(t.exp_(), keep_alpha_above, 0.0)
             if plan.slot_valid is not None:
                 alpha.mul_(plan.slot_valid[tiles][:, None, :])
             log_t = torch.log1p(alpha.neg())
@@ -163,11 +177,15 @@ class TileComposite(torch.autograd.Function):
             log_t[:, 0, :] = first
             crossing.index_add_(0, tiles, (incl > _LOG_HALF).sum(1))
             carry = incl[:, -1, :].clone()
-            alive = incl > _LOG_T_MIN
-            trans = incl.sub_(log_t).exp_().mul_(alive)
+            # Dropped rows (log T after them <= log 1e-4) get log T = -30 + 6.9 at most before
+            # the row, so T < 1e-9 there, while live rows have T > 1e-4: the threshold after
+            # exp zeroes exactly the dropped rows.
+            torch.nn.functional.threshold_(incl, _LOG_T_MIN, -30.0)
+            trans = torch.nn.functional.threshold_(incl.sub_(log_t).exp_(), _DROPPED_T, 0.0)
             w = alpha * trans
-            out.index_add_(0, tiles, torch.bmm(w.transpose(1, 2), feats[gid_ext[rows]]))
-            blocks.append(_Block(tiles=tiles, rows=rows, alpha=alpha, trans=trans))
+            f_rows = feats.index_select(0, gid_ext.index_select(0, rows_flat)).view(ta, lb, d)
+            out.index_add_(0, tiles, torch.bmm(w.transpose(1, 2), f_rows))
+            blocks.append(_Block(tiles=tiles, rows=rows, feats=f_rows, alpha=alpha, trans=trans))
             start += lb
             live = carry > _LOG_T_MIN
             if plan.slot_valid is not None:
@@ -189,28 +207,39 @@ class TileComposite(torch.autograd.Function):
         g_coeffs = torch.zeros(n_isect + 1, 6, device=device, dtype=plan.basis.dtype)
         g_feats = torch.zeros_like(feats)
         gid_ext = torch.cat([plan.gaussian_ids, plan.gaussian_ids.new_zeros(1)])
+        clamp_above = -_ALPHA_CLAMPED
         suffix = torch.zeros(plan.num_tiles, slots, device=device, dtype=torch.float64)  # sum g w behind
-        alpha_cl = ALPHA_MAX * (1.0 - 1e-6)  # below any rounding of the clamped value
         for blk in reversed(ctx.blocks):
             tiles, rows, alpha, trans = blk.tiles, blk.rows, blk.alpha, blk.trans
-            g_pix = g_pix_all[tiles]  # [Ta, S, D]
-            gid = gid_ext[rows]
-            grad_w = torch.bmm(feats[gid], g_pix.transpose(1, 2))  # [Ta, L, S]
+            lb = rows.shape[1]
+            g_pix = g_pix_all.index_select(0, tiles)  # [Ta, S, D]
+            grad_w = torch.bmm(blk.feats, g_pix.transpose(1, 2))  # [Ta, L, S]
             w = alpha * trans
             if ctx.needs_input_grad[1]:
-                g_feats.index_add_(0, gid.reshape(-1), torch.bmm(w, g_pix).reshape(-1, d))
-            cum = torch.cumsum(w.mul_(grad_w).double(), 1)
-            total = cum[:, -1, :] + suffix[tiles]
-            suffix[tiles] = total
-            behind = torch.sub(total[:, None, :], cum, out=cum)  # S_k
-            behind = behind.div_(torch.rsub(alpha, 1.0)).to(dtype)
-            p = grad_w.mul_(trans).sub_(behind).mul_(alpha)  # dL/dalpha * alpha
-            p.masked_fill_(alpha >= alpha_cl, 0.0)  # clamped alpha: no gradient
-            # Moments of p in float64: the chain back to means and conics cancels like the forward.
+                gid = gid_ext.index_select(0, rows.reshape(-1))
+                g_feats.index_add_(0, gid, torch.bmm(w, g_pix).reshape(-1, d))
+            gw = w.mul_(grad_w)
+            # S_k = sum_{m > k} g_m w_m: inside the block summed from the back (float32, no
+            # cancellation against the block total), plus the float64 sum of the blocks behind.
+            rev_incl = torch.cumsum(torch.flip(gw, [1]), 1)  # [j]: sum over rows >= L-1-j
+            carried = suffix.index_select(0, tiles)
+            suffix[tiles] = carried + rev_incl[:, -1, :].double()
+            behind = torch.empty_like(gw)
+            behind[:, lb - 1, :] = 0.0
+            behind[:, : lb - 1, :] = torch.flip(rev_incl[:, : lb - 1, :], [1])
+            behind.add_(carried.to(dtype)[:, None, :])
+            behind = behind.div_(torch.rsub(alpha, 1.0))
+            # -alpha where alpha is below the clamp, else 0 (clamped alpha: no gradient).
+            neg_alpha = torch.nn.functional.threshold_(alpha.neg(), clamp_above, 0.0)
+            # p = -(dL/dalpha * alpha), written into a buffer of the basis dtype (float64): its
+            # moments must be summed in float64, the chain back to means and conics cancels like
+            # the forward (float32 moments fail the dense-reference gradient test).
             basis = plan.basis
+            p = torch.empty(alpha.shape, device=device, dtype=basis.dtype)
+            torch.mul(grad_w.mul_(trans).sub_(behind), neg_alpha, out=p)
             if basis.dim() == 2:
-                r = p.reshape(-1, slots).to(basis.dtype) @ basis.t()
+                r = p.view(-1, slots) @ basis.t()
             else:
-                r = torch.bmm(p.to(basis.dtype), basis[tiles].transpose(1, 2)).reshape(-1, 6)
-            g_coeffs[rows.reshape(-1)] = r.neg_()  # each real row occurs once; sentinel dropped
+                r = torch.bmm(p, basis.index_select(0, tiles).transpose(1, 2)).reshape(-1, 6)
+            g_coeffs.index_copy_(0, rows.reshape(-1), r)  # each real row once; sentinel dropped
         return g_coeffs[:n_isect], g_feats, None
