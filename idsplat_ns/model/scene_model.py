@@ -56,8 +56,10 @@ class SceneModel(nn.Module):
         """Activated Gaussians in the world at ``time`` (seconds); absent instances removed."""
         g = self.gaussians.activated()
         ids = self.gaussians.instance_ids
-        if self.trajectories is None or time is None:
-            keep = ids == 0 if self.trajectories is not None else torch.ones_like(ids, dtype=torch.bool)
+        if self.trajectories is None:  # a static scene: nothing to pose or drop
+            return g | {"instance_ids": ids}
+        if time is None:  # without a time only the static background is defined
+            keep = ids == 0
             return {k: v[keep] for k, v in g.items()} | {"instance_ids": ids[keep]}
         from idsplat_ns.model.composition import compose_gaussians
 

@@ -28,9 +28,9 @@ from idsplat_ns.model.initialisation import InitConfig
 from idsplat_ns.model.mcmc import MCMCConfig, MCMCDensifier, mcmc_regularisation
 from idsplat_ns.model.scene_model import DecoderConfig, SceneModel
 from idsplat_ns.model.schedules import resolution_downscale
+from idsplat_ns.nerfstudio.dataparser import OPENCV_TO_OPENGL
 
 CONSOLE = Console()
-OPENGL_TO_OPENCV = torch.diag(torch.tensor([1.0, -1.0, -1.0]))
 GAUSSIAN_GROUPS = GaussianSet.PARAM_NAMES
 
 
@@ -170,7 +170,7 @@ class IDSplatModel(Model):
     # --- rendering ----------------------------------------------------------------------------
     def _camera_inputs(self, camera: Cameras, downscale: int) -> tuple[Tensor, Tensor, int, int]:
         c2w = camera.camera_to_worlds[0].to(self.device)  # [3, 4] OpenGL axes
-        R = c2w[:3, :3] @ OPENGL_TO_OPENCV.to(c2w)
+        R = c2w[:3, :3] @ torch.as_tensor(OPENCV_TO_OPENGL[:3, :3]).to(c2w)  # the flip is its own inverse
         viewmat = torch.eye(4, device=self.device)
         viewmat[:3, :3] = R.T
         viewmat[:3, 3] = -R.T @ c2w[:3, 3]
