@@ -190,7 +190,7 @@ def run_preprocessing(
 
     # 5. Static conversion.
     t0 = time.perf_counter()
-    tracks = convert_static_instances(tracks, config.static)
+    tracks = convert_static_instances(tracks, config.static, lifted)
     timings.append(StageTiming("static conversion", time.perf_counter() - t0, False,
                                f"{len(tracks.instances)} dynamic, {len(tracks.static_instances)} static"))
 
@@ -199,7 +199,10 @@ def run_preprocessing(
     if config.smoothing is None:
         timings.append(StageTiming("smoothing", 0.0, False, "skipped (disabled)"))
     else:
-        smooth_key = hash_json({"registration": reg_key, "static": asdict(config.static), "smoothing": asdict(config.smoothing)})
+        # Keyed on which instances stayed dynamic too, not only on the settings that decided it.
+        dynamic_ids = sorted(int(i.instance_id) for i in tracks.instances)
+        smooth_key = hash_json({"registration": reg_key, "static": asdict(config.static), "dynamic": dynamic_ids,
+                                "smoothing": asdict(config.smoothing)})
         smoothing = config.smoothing
         tracks, cached = _cached_file(
             cache_dir / f"smoothing-{smooth_key}.npz",
