@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Optional
 
 
 @dataclass(frozen=True)
@@ -41,6 +42,19 @@ class SmoothingConfig:
     """Levenberg-Marquardt iterations of the first (outlier-detection) pass."""
     final_iterations: int = 10
     """Maximum Levenberg-Marquardt iterations of the final pass, without the outliers."""
+    reconverge_below_inlier_fraction: float = 0.5
+    """When the single-iteration first pass keeps fewer than this fraction of the measurements,
+    it has not converged (the initial guess was poor), and flagging from it would discard good
+    measurements: the first pass is then iterated up to ``final_iterations`` and the outliers
+    flagged again. Measured on the synthetic street (docs/smoothing.md): a moving pickup with 3
+    gross outliers among 10 measurements kept 1 and was smoothed to a constant pose; reconverged,
+    it keeps the 6 good ones. 0 always uses the paper's single iteration."""
+    span_max_distance: Optional[float] = 1.0
+    """Metres: a measurement farther than this from the smoothed position does not extend the
+    instance's span (it exists between its first and last measurement that does). A gross
+    outlier at the end of a track would otherwise keep the instance alive where the CT model only
+    extrapolates (measured: 8-13 m from the truth on the synthetic street). None: every
+    measurement extends the span."""
     min_noise_dt: float = 1e-3
     """Time steps shorter than this [s] use this value in the random-walk sigmas, so that
     nearly coincident timestamps do not make the random walks infinitely stiff."""

@@ -36,7 +36,7 @@ class SmoothedTrajectory:
     inliers: np.ndarray  # [T] bool: measurement existed and was kept in the final pass
     whitened_errors: np.ndarray  # [T] first-pass whitened measurement errors (NaN where none)
     outlier_threshold: float  # the whitened-error threshold that was applied
-    span: tuple[float, float]  # first and last time with a measurement: the instance exists in between
+    span: tuple[float, float]  # first and last time with a measurement near the result (config.span_max_distance): the instance exists in between
 
     def pose_at(self, time: float) -> np.ndarray | None:
         """Pose [4, 4] at ``time`` [s], or None outside ``span`` (the instance is absent there).
@@ -233,6 +233,13 @@ def smooth_trajectory(
         errors[t] = F.whitened_measurement_error(measured[t], first.atPose3(F.pose_key(int(t))), config)
     threshold = _outlier_threshold(errors[valid], config)
     inliers = valid & (errors <= threshold)
+    if inliers.sum() < config.reconverge_below_inlier_fraction * valid.sum():
+        # The single first iteration did not converge: iterate it before trusting its residuals.
+        first = _optimize(_build_graph(times, measured, valid, init, config), first, config.final_iterations)
+        for t in np.flatnonzero(valid):
+            errors[t] = F.whitened_measurement_error(measured[t], first.atPose3(F.pose_key(int(t))), config)
+        threshold = _outlier_threshold(errors[valid], config)
+        inliers = valid & (errors <= threshold)
     if not inliers.any():
         # Everything looks wrong: keep the measurement that agrees best rather than none.
         inliers[int(np.nanargmin(errors))] = True
@@ -243,6 +250,12 @@ def smooth_trajectory(
     out_poses = np.empty((T, 4, 4))
     for t in range(T):
         out_poses[t] = final.atPose3(F.pose_key(t)).matrix()
+    spanning = valid.copy()
+    if config.span_max_distance is not None:
+        gap = np.linalg.norm(out_poses[:, :3, 3] - measured[:, :3, 3], axis=1)
+        spanning &= gap <= config.span_max_distance
+        if not spanning.any():
+            spanning = inliers
     out_poses[:, :3, 3] += origin
     return SmoothedTrajectory(
         times=times.copy(),
@@ -253,5 +266,5 @@ def smooth_trajectory(
         inliers=inliers,
         whitened_errors=errors,
         outlier_threshold=threshold,
-        span=(float(times[valid][0]), float(times[valid][-1])),
+        span=(float(times[spanning][0]), float(times[spanning][-1])),
     )
