@@ -2,7 +2,8 @@
 registered with nerfstudio through entry points in pyproject.toml (dataparsers: dataparsers.py).
 
 The speed/accuracy trade is a preset: ``idsplat-fast`` keeps the model and losses but trains
-fewer steps with a proportionally shorter resolution schedule and fewer initial Gaussians.
+fewer steps with a proportionally shorter resolution schedule, fewer initial Gaussians and a lidar
+batch every fourth step.
 """
 
 from __future__ import annotations
@@ -50,6 +51,10 @@ def _optimizers(max_steps: int, warmup_scale: float = 1.0) -> dict:
         "features": group(2.5e-3),
         "decoders": group(1e-3, 1e-3, warmup=500),
         "sensor_embeddings": group(1e-3, 1e-3, warmup=500),
+        # The lidar head is a decoder (Table 10's "Decoders" row); absent in camera-only scenes.
+        "lidar_head": group(1e-3, 1e-3, warmup=500),
+        # Table 10's "Cam. time to center": a learnable time offset per camera (only with instances).
+        "camera_time_offsets": group(2e-4, 1e-7, warmup=10_000),
         # Instance trajectories (absent in static scenes; nerfstudio ignores unused groups).
         "trajectory_positions": group(1e-3, 1e-4, warmup=1500),
         "trajectory_rotations": group(5e-5, 1e-6, warmup=1500),
@@ -61,6 +66,10 @@ def make_trainer_config(method_name: str, max_steps: int, resolution_schedule: t
     if fast:
         model.num_random_points = 20_000
         model.max_lidar_points = 60_000
+        # A lidar batch costs more than a full-resolution camera step on the CPU (0.5 s against
+        # 0.35 s, docs/lidar.md): every fourth step keeps `make demo` near 10 minutes (the paper:
+        # every step, which `idsplat` keeps).
+        model.lidar.every_n_steps = 4
     return TrainerConfig(
         method_name=method_name,
         steps_per_eval_image=max(max_steps // 10, 100),

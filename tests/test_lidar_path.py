@@ -9,7 +9,7 @@ import torch
 from idsplat_ns.data.lidar import LidarSweep
 from idsplat_ns.eval.lidar_metrics import chamfer_distance, lidar_metrics
 from idsplat_ns.model.lidar_head import LidarHead, LidarHeadOutput
-from idsplat_ns.model.lidar_losses import LidarLossWeights, lidar_losses
+from idsplat_ns.model.lidar_losses import LidarLossConfig, lidar_losses
 from idsplat_ns.model.lidar_render import (
     LidarRayBatch,
     ray_angles,
@@ -180,7 +180,7 @@ def test_losses_and_gradients_reach_gaussian_means_and_the_head():
     out = render_lidar_rays(
         lambda t: gs, rays, torch.tensor(sweep.sensor_to_world, dtype=torch.float32)
     )
-    losses = lidar_losses(out, head(out.features), rays, LidarLossWeights())
+    losses = lidar_losses(out, head(out.features), rays, LidarLossConfig())
     # Range off by about 1 m on every returned ray: depth loss 0.1 * ~1.
     assert losses["lidar_depth"].item() == pytest.approx(0.1, rel=0.1)
     assert all(v.item() > 0 for v in losses.values())
@@ -209,21 +209,22 @@ def test_losses_are_zero_on_perfect_predictions_and_match_closed_forms():
         "intensities": [0.2, 0.6, 0.0],
         "returned": [True, True, False],
     }
+    exact = LidarLossConfig(depth_quantile=1.0)  # closed forms over every returned ray
     perfect = lidar_losses(
-        *_constructed([5.0, 7.0, 123.0], [0.2, 0.6, 0.9], [-30.0, -30.0, 30.0], **gt)
+        *_constructed([5.0, 7.0, 123.0], [0.2, 0.6, 0.9], [-30.0, -30.0, 30.0], **gt), exact
     )
     for v in perfect.values():
         assert v.item() == pytest.approx(0.0, abs=1e-9)
     # Range off by 2 m on one of two returned rays; intensity off by 0.1 on both; logits 0.
     off = lidar_losses(
-        *_constructed([7.0, 7.0, 0.0], [0.3, 0.5, 0.0], [0.0, 0.0, 0.0], **gt)
+        *_constructed([7.0, 7.0, 0.0], [0.3, 0.5, 0.0], [0.0, 0.0, 0.0], **gt), exact
     )
     assert off["lidar_depth"].item() == pytest.approx(0.1 * 4.0 / 2)
     assert off["lidar_intensity"].item() == pytest.approx(1.0 * 0.01)
     assert off["lidar_ray_drop"].item() == pytest.approx(0.1 * math.log(2.0))
     # Wrong drop decision: the no-return ray predicted as returned costs BCE 30 / 3 rays.
     wrong = lidar_losses(
-        *_constructed([5.0, 7.0, 0.0], [0.2, 0.6, 0.0], [-30.0, -30.0, -30.0], **gt)
+        *_constructed([5.0, 7.0, 0.0], [0.2, 0.6, 0.0], [-30.0, -30.0, -30.0], **gt), exact
     )
     assert wrong["lidar_ray_drop"].item() == pytest.approx(0.1 * 30.0 / 3, rel=1e-6)
 

@@ -1,19 +1,28 @@
-"""Lidar reconstruction losses of the paper (Sec. 3.5, weights from SplatAD).
+"""Lidar reconstruction losses of the paper (Sec. 3.5; loss form and weights from SplatAD).
 
-``L_lidar = 0.1 L_depth + 0.1 L_los + 1.0 L_inten + 0.1 L_BCE``, of which this module computes:
+``L_lidar = 0.1 L_depth + 0.1 L_los + 1.0 L_inten + 0.1 L_BCE`` with, over one batch of rays:
 
-* ``L_depth``: mean over returned rays of ``(rendered expected range - measured range)^2`` (m^2).
+* ``L_depth``: mean over returned rays of ``(rendered range - measured range)^2`` (m^2), where the
+  rendered range is the **unnormalised** expected range ``sum_i w_i r_i`` (= alpha x the
+  alpha-normalised expected range), as SplatAD renders it.
+* ``L_los`` (line of sight): mean over returned rays of the summed opacities ``sum_i alpha_i`` of
+  the Gaussians the ray meets before its measured range minus a margin of 0.8 m (SplatAD's
+  ``alpha_sum_until_points`` with ``line_of_sight_dist`` 0.8): free space must stay empty.
 * ``L_inten``: mean over returned rays of ``(decoded intensity - measured intensity)^2``.
 * ``L_BCE``: mean over all rays of the binary cross-entropy between the decoded ray-drop logit
   and the target 1 for rays that returned nothing, 0 for returned rays.
 
-**Not computed: the line-of-sight loss** (paper weight 0.1), which penalises the opacity
-accumulated *before each ray's own measured range*. That needs a per-ray truncation of the
-compositing, which :func:`~idsplat_ns.render.rasterize_lidar` does not offer: per-Gaussian
-features cannot depend on the ray, so a composited channel can only truncate at one range per
-render call. (Range buckets - one indicator channel per threshold - would give a lower bound
-with a margin that varies per ray, not the loss itself, so it is not substituted here.) When the
-rasterizer gains a per-ray truncation range, add the term with weight 0.1.
+As in SplatAD, the returned rays whose squared depth error is at or above the batch's 95th
+percentile are left out of the depth, line-of-sight and intensity means (a few rays on depth
+discontinuities, or not yet covered by any Gaussian, would otherwise dominate the batch).
+
+**Returned rays that no Gaussian covers.** With the unnormalised range such a ray renders range
+0, so its depth error is large and, where any Gaussian touches the ray, the gradient raises that
+Gaussian's opacity and pulls it to the measured range; dividing by a small alpha (the normalised
+range) would instead make the range of a barely covered ray jump to whatever faint Gaussian is
+there, with gradients of size 1/alpha. A ray that no Gaussian touches at all gives no gradient
+(its loss is constant); the random initial points and MCMC relocation are what fill such holes,
+and the 95% quantile keeps those rays from drowning the rest of the batch.
 """
 
 from __future__ import annotations
@@ -29,20 +38,25 @@ from idsplat_ns.render import LidarRender
 
 
 @dataclass
-class LidarLossWeights:
-    """Weights of the lidar loss terms (paper / SplatAD defaults)."""
+class LidarLossConfig:
+    """Weights and settings of the lidar loss terms (paper = SplatAD defaults)."""
 
     depth: float = 0.1
-    """Weight of the L2 loss on the expected range of returned rays (metres squared)."""
+    """Weight of the L2 loss on the unnormalised expected range of returned rays (metres squared)."""
+    line_of_sight: float = 0.1
+    """Weight of the line-of-sight loss (summed opacity before the measured range minus the margin)."""
     intensity: float = 1.0
     """Weight of the L2 loss on the decoded intensity of returned rays."""
     ray_drop: float = 0.1
     """Weight of the binary cross-entropy on the ray-drop logit over all rays."""
+    line_of_sight_margin: float = 0.8
+    """Metres before the measured range where the line-of-sight loss stops counting (SplatAD: 0.8)."""
+    depth_quantile: float = 0.95
+    """Returned rays with a squared depth error at or above this quantile of the batch are left out
+    of the depth, line-of-sight and intensity terms (SplatAD: 0.95; 1.0 keeps every ray)."""
 
 
-def _masked_mean(
-    values: torch.Tensor, mask: torch.Tensor
-) -> torch.Tensor:  # values, mask: [R]
+def _masked_mean(values: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:  # values, mask: [R]
     """Mean of ``values`` where ``mask``; 0 (still in the graph) when the mask is empty."""
     m = mask.to(values.dtype)
     return (values * m).sum() / m.sum().clamp_min(1.0)
@@ -52,24 +66,33 @@ def lidar_losses(
     render: LidarRender,
     head_out: LidarHeadOutput,
     rays: LidarRayBatch,
-    weights: LidarLossWeights | None = None,
+    config: LidarLossConfig | None = None,
 ) -> dict[str, torch.Tensor]:
-    """Weighted lidar losses (default weights when ``weights`` is None): ``lidar_depth``, ``lidar_intensity``, ``lidar_ray_drop`` (scalars).
+    """Weighted lidar losses: ``lidar_depth``, ``lidar_intensity``, ``lidar_ray_drop`` and, when
+    ``render.alpha_before_cutoff`` is present (the rays were rendered with a cut-off at their
+    measured range minus ``config.line_of_sight_margin``), ``lidar_line_of_sight`` (scalars).
 
     ``render`` and ``head_out`` are for the rays of ``rays`` in the same order (see
     :func:`~idsplat_ns.model.lidar_render.render_lidar_rays` and
-    :class:`~idsplat_ns.model.lidar_head.LidarHead`). The line-of-sight term is not included (see
-    the module docstring).
+    :class:`~idsplat_ns.model.lidar_head.LidarHead`).
     """
-    weights = weights if weights is not None else LidarLossWeights()
+    cfg = config if config is not None else LidarLossConfig()
     returned = rays.returned
-    depth = _masked_mean((render.range[:, 0] - rays.ranges) ** 2, returned)
-    intensity = _masked_mean((head_out.intensity - rays.intensities) ** 2, returned)
-    drop = F.binary_cross_entropy_with_logits(
-        head_out.ray_drop_logit, (~returned).to(head_out.ray_drop_logit.dtype)
-    )
-    return {
-        "lidar_depth": weights.depth * depth,
-        "lidar_intensity": weights.intensity * intensity,
-        "lidar_ray_drop": weights.ray_drop * drop,
+    sq_err = (render.range_unnormalised[:, 0] - rays.ranges) ** 2
+    kept = returned
+    if cfg.depth_quantile < 1.0 and bool(returned.any()):
+        threshold = torch.quantile(sq_err.detach()[returned], cfg.depth_quantile)
+        # "< threshold" as SplatAD, but never drop every ray (all errors equal, e.g. all zero).
+        below = sq_err.detach() < threshold
+        kept = returned & (below if bool((returned & below).any()) else torch.ones_like(below))
+    depth = _masked_mean(sq_err, kept)
+    intensity = _masked_mean((head_out.intensity - rays.intensities) ** 2, kept)
+    drop = F.binary_cross_entropy_with_logits(head_out.ray_drop_logit, (~returned).to(head_out.ray_drop_logit.dtype))
+    out = {
+        "lidar_depth": cfg.depth * depth,
+        "lidar_intensity": cfg.intensity * intensity,
+        "lidar_ray_drop": cfg.ray_drop * drop,
     }
+    if render.alpha_before_cutoff is not None:
+        out["lidar_line_of_sight"] = cfg.line_of_sight * _masked_mean(render.alpha_before_cutoff[:, 0], kept)
+    return out

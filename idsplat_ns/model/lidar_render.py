@@ -27,7 +27,8 @@ Approximations (documented sizes):
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import Optional
 
 import numpy as np
 import torch
@@ -132,6 +133,7 @@ def render_lidar_rays(
     rays: LidarRayBatch,
     sensor_to_world: Tensor,  # [4, 4] sweep pose (its rotation is used; translation per bin)
     num_time_bins: int = 4,
+    cutoff_ranges: Optional[Tensor] = None,  # [R] metres from each ray's own origin
     **rasterizer_kwargs,
 ) -> LidarRender:
     """Render ``rays``: per-ray features [R, D], alpha [R, 1], range and median range [R, 1].
@@ -139,53 +141,53 @@ def render_lidar_rays(
     ``posed_at(t)`` returns world-posed activated Gaussians at time ``t`` (keys ``means``,
     ``quats``, ``scales``, ``opacities``, ``features``). Ranges are measured from each ray's own
     origin along its direction (first-order origin correction, see the module docstring); 0 where
-    nothing was hit. ``rasterizer_kwargs`` go to :func:`rasterize_lidar` (resolutions, planes...).
+    nothing was hit. With ``cutoff_ranges`` the render also has ``alpha_before_cutoff`` [R, 1]: the
+    summed alphas of the Gaussians in front of each ray's cut-off (the line-of-sight loss).
+    ``rasterizer_kwargs`` go to :func:`rasterize_lidar` (resolutions, planes...).
     """
     r = rays.num_rays
     if r == 0:
-        raise IDSplatError(
-            "render_lidar_rays: the ray batch is empty; sample at least one ray"
-        )
+        raise IDSplatError("render_lidar_rays: the ray batch is empty; sample at least one ray")
     device = rays.origins.device
     bins, centres = time_bins(rays.times, num_time_bins)
     rot = sensor_to_world[:3, :3].to(device=device, dtype=torch.float32)
     chunks: list[tuple[Tensor, LidarRender]] = []
-    feature_dim = 0
     for b in range(centres.numel()):
         idx = torch.nonzero(bins == b).squeeze(1)
         if idx.numel() == 0:
             continue
         g = posed_at(float(centres[b]))
-        feature_dim = g["features"].shape[1]
         origin = rays.origins[idx].mean(0)  # the bin's sensor position
         lidar_from_world = torch.eye(4, device=device, dtype=torch.float32)
         lidar_from_world[:3, :3] = rot.T
         lidar_from_world[:3, 3] = -rot.T @ origin
         dirs = rays.directions[idx]
+        # Range from each ray's own origin = range from the bin origin minus this along-ray offset.
+        along = ((rays.origins[idx] - origin) * dirs).sum(1, keepdim=True)
         az, el = ray_angles(dirs, rot)
         if g["means"].shape[0] == 0:  # nothing present in this bin: no hit
             zeros = torch.zeros(idx.numel(), 1, device=device)
-            out = LidarRender(features=g["features"].new_zeros(idx.numel(), feature_dim), alpha=zeros,
-                              range=zeros, median_range=zeros)  # fmt: skip
+            out = LidarRender(features=g["features"].new_zeros(idx.numel(), g["features"].shape[1]), alpha=zeros,
+                              range=zeros, median_range=zeros,
+                              alpha_before_cutoff=None if cutoff_ranges is None else zeros)  # fmt: skip
         else:
+            cut = None if cutoff_ranges is None else cutoff_ranges[idx] + along[:, 0]
             out = rasterize_lidar(g["means"], g["quats"], g["scales"], g["opacities"], g["features"],
-                                  lidar_from_world, az, el, **rasterizer_kwargs)  # fmt: skip
-        # Range from each ray's own origin: subtract the along-ray offset of that origin.
-        along = ((rays.origins[idx] - origin) * dirs).sum(1, keepdim=True)
+                                  lidar_from_world, az, el, ray_cutoff=cut, **rasterizer_kwargs)  # fmt: skip
         hit = out.alpha > 0
-        out = LidarRender(
-            features=out.features, alpha=out.alpha,
+        out = replace(
+            out,
             range=torch.where(hit, out.range - along, out.range),
             median_range=torch.where(hit, out.median_range - along, out.median_range),
-        )  # fmt: skip
+        )
         chunks.append((idx, out))
-    features = chunks[0][1].features.new_zeros(r, feature_dim)
-    alpha = chunks[0][1].alpha.new_zeros(r, 1)
-    rng, med = alpha.new_zeros(r, 1), alpha.new_zeros(r, 1)
-    for idx, out in chunks:
-        # index_copy keeps the graph (out-of-place) so gradients reach every bin's Gaussians
-        features = features.index_copy(0, idx, out.features)
-        alpha = alpha.index_copy(0, idx, out.alpha)
-        rng = rng.index_copy(0, idx, out.range)
-        med = med.index_copy(0, idx, out.median_range)
-    return LidarRender(features=features, alpha=alpha, range=rng, median_range=med)
+    fields = ["features", "alpha", "range", "median_range"] + ([] if cutoff_ranges is None else ["alpha_before_cutoff"])
+    merged = {}
+    for name in fields:
+        first = getattr(chunks[0][1], name)
+        value = first.new_zeros(r, first.shape[1])
+        for idx, out in chunks:
+            # index_copy keeps the graph (out-of-place) so gradients reach every bin's Gaussians
+            value = value.index_copy(0, idx, getattr(out, name))
+        merged[name] = value
+    return LidarRender(**merged)

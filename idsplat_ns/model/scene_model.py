@@ -4,6 +4,10 @@ trajectories, appearance decoder and sensor embeddings, rendered for a camera at
 Static Gaussians (instance ID 0) live in the world frame; Gaussians of instance k live in k's
 canonical frame and are moved by k's trajectory pose at the render time; an instance whose
 trajectory does not span the render time is absent (its Gaussians are not rendered).
+
+Optional parts: the lidar head (2-layer MLP decoding composited features into intensity and
+ray-drop logit; only for scenes with lidar) and per-camera learnable time offsets (seconds, added
+to each camera's render time; only when there are instances whose poses depend on the time).
 """
 
 from __future__ import annotations
@@ -16,7 +20,9 @@ from torch import Tensor, nn
 
 from idsplat_ns.model.decoders import RGBDecoderCNN
 from idsplat_ns.model.gaussians import GaussianSet
-from idsplat_ns.render import rasterize_camera
+from idsplat_ns.model.lidar_head import LidarHead, LidarHeadOutput
+from idsplat_ns.model.lidar_render import LidarRayBatch, render_lidar_rays
+from idsplat_ns.render import LidarRender, rasterize_camera
 
 
 @dataclass
@@ -39,7 +45,10 @@ class SceneModel(nn.Module):
     """Everything that is optimised, and the camera rendering of it at a time."""
 
     def __init__(self, gaussians: GaussianSet, num_sensors: int, decoder: DecoderConfig,
-                 trajectories: Optional[nn.Module] = None, background=(0.5, 0.5, 0.5)) -> None:
+                 trajectories: Optional[nn.Module] = None, background=(0.5, 0.5, 0.5), *,
+                 lidar_head_hidden: Optional[int] = None, camera_time_offsets: bool = False) -> None:
+        """``lidar_head_hidden``: hidden width of the lidar head (None: no lidar head, camera-only
+        scene). ``camera_time_offsets``: learn a time offset per camera (only with trajectories)."""
         super().__init__()
         self.gaussians = gaussians
         self.trajectories = trajectories
@@ -47,12 +56,25 @@ class SceneModel(nn.Module):
         nn.init.zeros_(self.sensor_embedding.weight)
         self.rgb_decoder = RGBDecoderCNN(decoder.feature_dim, decoder.sensor_embedding_dim, decoder.hidden, decoder.kernel, decoder.blocks)
         self.background = nn.Parameter(torch.logit(torch.tensor(background, dtype=torch.float32).clamp(0.01, 0.99)))
+        self.lidar_head = None if lidar_head_hidden is None else LidarHead(decoder.feature_dim, lidar_head_hidden)
+        # A time offset only moves instances: without trajectories it would get no gradient.
+        self.camera_time_offset = (
+            nn.Parameter(torch.zeros(num_sensors)) if camera_time_offsets and trajectories is not None else None
+        )
 
     @property
     def has_instances(self) -> bool:
         return self.trajectories is not None
 
-    def posed_gaussians(self, time: Optional[float]) -> dict[str, Tensor]:
+    def camera_time(self, time: Optional[float], sensor: int) -> Optional[float | Tensor]:
+        """The render time of camera ``sensor``: ``time`` plus its learnable offset (a float64
+        scalar tensor that carries the offset's gradient) when offsets are learnt."""
+        if time is None or self.camera_time_offset is None:
+            return time
+        return torch.tensor(time, dtype=torch.float64, device=self.camera_time_offset.device) + \
+            self.camera_time_offset[sensor].double()
+
+    def posed_gaussians(self, time: Optional[float | Tensor]) -> dict[str, Tensor]:
         """Activated Gaussians in the world at ``time`` (seconds); absent instances removed."""
         g = self.gaussians.activated()
         ids = self.gaussians.instance_ids
@@ -78,7 +100,7 @@ class SceneModel(nn.Module):
         sensor: int = 0,
     ) -> dict[str, Tensor]:
         """rgb [H, W, 3], depth / accumulation [H, W, 1], instance_id [H, W, 1] (-1 empty, 0 static)."""
-        g = self.posed_gaussians(time)
+        g = self.posed_gaussians(self.camera_time(time, sensor))
         feats = torch.cat([g["colors"], g["features"]], dim=1)
         out = rasterize_camera(
             g["means"], g["quats"], g["scales"], g["opacities"], feats, viewmat[None], K[None], width, height,
@@ -97,3 +119,19 @@ class SceneModel(nn.Module):
             "instance_id": out.instance_id[0, ..., None].float(),
             "background": background,
         }
+
+    def render_lidar(
+        self,
+        rays: LidarRayBatch,
+        sensor_to_world: Tensor,  # [4, 4] the sweep's sensor pose
+        num_time_bins: int = 4,
+        cutoff_ranges: Optional[Tensor] = None,  # [R] line-of-sight cut-off from each ray's origin
+        **rasterizer_kwargs,
+    ) -> tuple[LidarRender, LidarHeadOutput]:
+        """Render lidar rays at their own times (time bins, instances posed per bin) and decode
+        intensity and ray drop with the lidar head (see :func:`render_lidar_rays`)."""
+        if self.lidar_head is None:
+            raise RuntimeError("SceneModel.render_lidar: this model has no lidar head (a camera-only scene)")
+        render = render_lidar_rays(self.posed_gaussians, rays, sensor_to_world, num_time_bins,
+                                   cutoff_ranges=cutoff_ranges, **rasterizer_kwargs)  # fmt: skip
+        return render, self.lidar_head(render.features)

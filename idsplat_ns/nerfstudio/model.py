@@ -3,7 +3,8 @@ rendered at each camera's time, decoded by the small CNN with sensor embeddings,
 MCMC. The maths lives in :mod:`idsplat_ns.model` (no nerfstudio); this is the adapter.
 
 Loss: 0.8 L1 + 0.2 (1 - SSIM) + the MCMC opacity/scale regularisers; resolution schedule 1/4,
-1/2, full (paper: until steps 3000 and 6000).
+1/2, full (paper: until steps 3000 and 6000). Scenes with lidar add, every (k-th) training step,
+the lidar losses of a batch of rays from a training sweep (:mod:`idsplat_ns.model.lidar_supervision`).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from idsplat_ns.data.images import load_rgb
 from idsplat_ns.eval.image_metrics import psnr, ssim
 from idsplat_ns.model.gaussians import GaussianSet
 from idsplat_ns.model.initialisation import InitConfig
+from idsplat_ns.model.lidar_supervision import LidarConfig, LidarSupervisor, SweepRender, render_sweep, sweeps_of_frames
 from idsplat_ns.model.mcmc import MCMCConfig, MCMCDensifier, mcmc_regularisation
 from idsplat_ns.model.scene_model import DecoderConfig, SceneModel
 from idsplat_ns.model.schedules import resolution_downscale
@@ -69,6 +71,10 @@ class IDSplatModelConfig(ModelConfig):
     """LPIPS backbone: ``alex`` (paper's PandaSet protocol) or ``vgg`` (its Waymo protocols)."""
     background_color: Tuple[float, float, float] = (0.5, 0.5, 0.5)
     """Initial learnable background colour behind all Gaussians."""
+    lidar: LidarConfig = field(default_factory=LidarConfig)
+    """Lidar supervision (rays per step, cadence, loss weights); used only when the scene has lidar."""
+    learn_camera_time_offsets: bool = True
+    """Learn a time offset per camera (seconds, zero-initialised; only when instances exist)."""
 
 
 class IDSplatModel(Model):
@@ -93,7 +99,14 @@ class IDSplatModel(Model):
             # ns-eval / ns-viewer: a checkpoint is loaded next (load_state_dict resizes), so the
             # initialisation (a KNN over millions of points at paper settings) would be wasted.
             gaussians = GaussianSet(0, self.config.decoder.feature_dim)
-        self.scene_model = SceneModel(gaussians, len(self.camera_names), self.config.decoder, trajectories, self.config.background_color)
+        train_frames = {im.frame_index for im in metadata["split_images"]}
+        lidar_sweeps = sweeps_of_frames(scene, train_frames) if self.config.lidar.enabled else []
+        self.scene_model = SceneModel(
+            gaussians, len(self.camera_names), self.config.decoder, trajectories, self.config.background_color,
+            lidar_head_hidden=self.config.lidar.head_hidden if lidar_sweeps else None,
+            camera_time_offsets=self.config.learn_camera_time_offsets,
+        )
+        self.lidar = LidarSupervisor(lidar_sweeps, self.config.lidar, seed=self.config.init_seed) if lidar_sweeps else None
         cap = min(self.config.mcmc.cap_max, int(self.config.cap_factor * max(gaussians.num, 1)))
         self.mcmc_config = replace(self.config.mcmc, cap_max=cap)
         self.densifier = MCMCDensifier(self.mcmc_config, seed=self.config.init_seed) if self.config.use_mcmc else None
@@ -155,6 +168,10 @@ class IDSplatModel(Model):
         groups = {name: [getattr(g, name)] for name in GAUSSIAN_GROUPS}
         groups["decoders"] = list(sm.rgb_decoder.parameters()) + [sm.background]
         groups["sensor_embeddings"] = list(sm.sensor_embedding.parameters())
+        if sm.lidar_head is not None:
+            groups["lidar_head"] = list(sm.lidar_head.parameters())
+        if sm.camera_time_offset is not None:
+            groups["camera_time_offsets"] = [sm.camera_time_offset]
         if sm.trajectories is not None:
             groups["trajectory_positions"] = list(sm.trajectories.position_parameters())
             groups["trajectory_rotations"] = list(sm.trajectories.rotation_parameters())
@@ -200,7 +217,17 @@ class IDSplatModel(Model):
         viewmat, K, width, height = self._camera_inputs(camera, downscale)
         meta = camera.metadata or {}
         sensor = int(meta["sensor_idx"].reshape(-1)[0]) if "sensor_idx" in meta else 0
-        return self.scene_model.render_camera(viewmat, K, width, height, self._render_time(camera), sensor)
+        outputs = self.scene_model.render_camera(viewmat, K, width, height, self._render_time(camera), sensor)
+        # Training steps only: the viewer renders under no_grad while the model is in training mode.
+        if self.training and torch.is_grad_enabled() and self.lidar is not None and self.lidar.is_lidar_step(self.step):
+            rays, sensor_to_world = self.lidar.sample(self.device)
+            outputs.update(self.lidar.render_batch(self.scene_model, rays, sensor_to_world))
+        return outputs
+
+    def render_lidar_sweep(self, sweep) -> SweepRender:
+        """Render a whole lidar sweep (range, intensity, ray-drop probability, alpha and the point
+        cloud of the rays predicted as returned); used by evaluation."""
+        return render_sweep(self.scene_model, sweep, self.config.lidar, self.device, seed=self.config.init_seed)
 
     @torch.no_grad()
     def get_outputs_for_camera(self, camera: Cameras, obb_box=None) -> Dict[str, Tensor]:  # type: ignore[override]
@@ -229,6 +256,8 @@ class IDSplatModel(Model):
         losses = {"main_loss": (1 - lam) * l1 + lam * (1 - s)}
         if self.densifier is not None and self.training:
             losses["mcmc_reg"] = mcmc_regularisation(self.gaussians, self.mcmc_config)
+        if "lidar_rays" in outputs and self.lidar is not None:
+            losses.update(self.lidar.losses(outputs))
         return losses
 
     def get_image_metrics_and_images(self, outputs, batch) -> Tuple[Dict[str, float], Dict[str, Tensor]]:

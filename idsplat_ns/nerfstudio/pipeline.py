@@ -1,5 +1,6 @@
 """IDSplat pipeline: the vanilla pipeline with an evaluation average that tolerates metrics only
-some images have (DPSNR needs moving objects in view) and says what it could not compute."""
+some images have (DPSNR needs moving objects in view) and says what it could not compute, plus the
+tracking metrics, the render speed and the lidar metrics of the held-out sweeps."""
 
 from __future__ import annotations
 
@@ -44,6 +45,35 @@ class IDSplatPipeline(VanillaPipeline):
         with torch.no_grad():
             return flatten_metrics(tracking_summary(scene, trajectories.positions_at))
 
+    def _held_out_sweeps(self) -> list:
+        """Lidar sweeps of the evaluation frames (none for camera-only models or scenes)."""
+        if getattr(self.model, "lidar", None) is None:
+            return []
+        from idsplat_ns.model.lidar_supervision import sweeps_of_frames
+
+        frames = {im.frame_index for im in self.datamanager.eval_dataset.metadata["split_images"]}
+        return sweeps_of_frames(self.datamanager.scene, frames)
+
+    def _lidar_metrics(self, progress: Progress) -> dict:
+        """Table-2 lidar metrics averaged over the held-out sweeps (NaN sweeps left out)."""
+        from idsplat_ns.model.lidar_supervision import sweep_metrics
+
+        sweeps = self._held_out_sweeps()
+        if not sweeps:
+            return {}
+        per_sweep = []
+        task = progress.add_task("[green]Evaluating held-out lidar sweeps...", total=len(sweeps))
+        for sweep in sweeps:
+            per_sweep.append(sweep_metrics(self.model.render_lidar_sweep(sweep), self.model.config.lidar.drop_threshold))
+            progress.advance(task)
+        out: dict = {}
+        for key in per_sweep[0]:
+            values = np.array([m[key] for m in per_sweep], dtype=np.float64)
+            finite = values[np.isfinite(values)]
+            out[key] = float(finite.mean()) if finite.size else float("nan")
+        out["lidar_num_sweeps"] = len(per_sweep)
+        return out
+
     def get_average_image_metrics(self, data_loader, image_prefix: str, step: Optional[int] = None,
                                   output_path: Optional[Path] = None, get_std: bool = False):
         self.eval()
@@ -64,6 +94,7 @@ class IDSplatPipeline(VanillaPipeline):
                         arr = (image.detach().clamp(0, 1).cpu().numpy() * 255).astype(np.uint8)
                         Image.fromarray(arr).save(output_path / f"{image_prefix}_{key}_{idx:04d}.png")
                 progress.advance(task)
+            lidar = self._lidar_metrics(progress)
         keys = list(dict.fromkeys(k for m in per_image for k in m))
         result: dict = {}
         for key in keys:
@@ -77,6 +108,7 @@ class IDSplatPipeline(VanillaPipeline):
         result["render_mpix_per_s"] = result.pop("num_rays_per_sec") / 1e6
         result.pop("num_rays_per_sec_std", None)
         result.update(self._tracking_metrics())
+        result.update(lidar)
         if "lpips" not in result and step is None:
             # Only for ns-eval's JSON (step None): the trainer logs metrics as scalars.
             result["lpips_note"] = LPIPS_NOTE

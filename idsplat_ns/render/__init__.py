@@ -18,9 +18,11 @@ eps2d=0.3, tile_size=8, return_instance_alpha=False) -> CameraRender``
 ``rasterize_lidar(means [N,3] or [K,N,3], quats [N,4] or [K,N,4], scales [N,3], opacities [N],
 features [N,D], lidar_from_world [4,4] or [K,4,4], ray_azimuth [R], ray_elevation [R], *,
 ray_bins=None [R], azimuth_resolution=radians(0.2), elevation_resolution=radians(0.2),
-near_plane=0.01, far_plane=1e10, eps2d=0.3, tile_size=8) -> LidarRender``
+near_plane=0.01, far_plane=1e10, eps2d=0.3, tile_size=8, ray_cutoff=None [R], cull=True) -> LidarRender``
     Per-ray ``features`` [R,D], ``alpha`` [R,1], expected ``range`` and ``median_range`` [R,1];
-    K time bins for rolling sweeps (see :mod:`.lidar`).
+    with ``ray_cutoff`` also ``alpha_before_cutoff`` [R,1] (the summed alpha of the Gaussians in
+    front of each ray's cut-off range: the line-of-sight loss); ``cull`` skips Gaussians that no
+    ray of their time bin can reach. K time bins for rolling sweeps (see :mod:`.lidar`).
 
 ``rasterize_dense(...)``
     The dense every-Gaussian-against-every-pixel reference (tests and benchmarks only).

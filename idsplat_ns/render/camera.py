@@ -11,7 +11,7 @@ from torch import Tensor
 
 from ..errors import IDSplatError
 from .projection import Projection, project_gaussians
-from .tile_composite import DEFAULT_CHUNK_ELEMS, CompositePlan, TileComposite, pixel_basis, quadratic_coefficients
+from .tile_composite import DEFAULT_CHUNK_ELEMS, CompositePlan, TileCoefficients, TileComposite, pixel_basis
 from .tiles import intersect_tiles, tiles_to_image
 
 
@@ -154,13 +154,13 @@ def rasterize_projected(
     cx = ((local % isects.tiles_x) * b).double() + 0.5 * b
     cy = (torch.div(local, isects.tiles_x, rounding_mode="floor") * b).double() + 0.5 * b
     # One gather of (mean, conic, opacity) per intersection: index_select's backward is a single
-    # index_add, far cheaper on CPU than three advanced-indexing backward passes. Cast after the
-    # gather, so the gradients are accumulated per Gaussian in the input dtype as before.
+    # index_add, far cheaper on CPU than three advanced-indexing backward passes. The float64
+    # coefficients come from a Function whose gradient is one [I, 6] tensor in the input dtype,
+    # so the gradients are accumulated per Gaussian in the input dtype.
     per_gaussian = torch.cat(
         [proj.means2d.reshape(-1, 2), proj.conics.reshape(-1, 3), opacities.repeat(cams)[:, None]], dim=1
     )  # [C*N, 6]
-    g = per_gaussian.index_select(0, gid).double()  # [I, 6]
-    coeffs = quadratic_coefficients(g[:, 0] - cx, g[:, 1] - cy, g[:, 2:5], g[:, 5])
+    coeffs = TileCoefficients.apply(per_gaussian.index_select(0, gid), cx, cy)
     plan = CompositePlan(
         tile_offsets=isects.tile_offsets, gaussian_ids=gid,
         basis=pixel_basis(b, device, torch.float64), block_elems=chunk_elems,

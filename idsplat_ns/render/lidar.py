@@ -21,7 +21,7 @@ like separate cameras in one call. K = 1 (default) is a static sweep.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Optional
 
 import torch
@@ -43,6 +43,13 @@ class LidarRender:
     alpha: Tensor  # [R, 1] accumulated opacity
     range: Tensor  # [R, 1] expected range sum w r / alpha, 0 where alpha == 0
     median_range: Tensor  # [R, 1] range where transmittance crosses 0.5 (else expected range)
+    alpha_before_cutoff: Optional[Tensor] = None  # [R, 1] sum of alphas in front of the ray's cut-off range
+
+    @property
+    def range_unnormalised(self) -> Tensor:  # [R, 1]
+        """``sum_i w_i r_i`` = ``alpha * range``: the expected range without the division by
+        alpha (SplatAD's rendered depth; 0 where nothing is hit, no 1/alpha in its gradient)."""
+        return self.range * self.alpha
 
 
 @dataclass
@@ -127,6 +134,52 @@ def project_spherical(
     )
 
 
+_CULL_BUCKETS = 360  # azimuth buckets of the ray-coverage test (1 degree)
+
+
+@torch.no_grad()
+def seen_by_rays(
+    means: Tensor,  # [K, N, 3] world
+    scales: Tensor,  # [N, 3]
+    lidar_from_world: Tensor,  # [K, 4, 4]
+    ray_azimuth: Tensor,  # [R] radians
+    ray_elevation: Tensor,  # [R] radians
+    ray_bins: Tensor,  # [R] int64
+    margin: float,  # radians added to every Gaussian's angular extent
+) -> Tensor:  # [N] bool
+    """Gaussians that may reach a ray of their bin (conservative angular test; used to cull).
+
+    A Gaussian spans at most the cone ``asin(3 max_scale / range)`` around its mean's direction
+    (its 3-sigma sphere), widened by ``margin`` (the low-pass and the tile padding). It is kept when
+    that cone meets the rays' elevation band and a 1-degree azimuth bucket holding a ray of the same
+    bin (azimuth half-width ``asin(sin(cone) / cos(elevation))``), in any bin. A time bin of a spinning lidar covers a sector, so most Gaussians are culled per bin.
+    """
+    k = means.shape[0]
+    p = torch.einsum("kij,knj->kni", lidar_from_world[:, :3, :3], means) + lidar_from_world[:, None, :3, 3]
+    r = p.norm(dim=-1)
+    ext = torch.asin((3.0 * scales.max(dim=-1).values[None] / r.clamp_min(1e-9)).clamp(max=1.0)) + margin
+    phi = torch.remainder(torch.atan2(p[..., 1], p[..., 0]), 2 * math.pi)
+    theta = torch.atan2(p[..., 2], torch.hypot(p[..., 0], p[..., 1]))
+    # A cone of half-angle ext around elevation theta spans azimuths +-asin(sin(ext) / cos(theta)),
+    # the whole circle once it reaches a pole.
+    az_ext = torch.asin((torch.sin(ext.clamp(max=math.pi / 2)) / torch.cos(theta).clamp_min(1e-9)).clamp(max=1.0))
+    az_ext = torch.where(theta.abs() + ext >= math.pi / 2, torch.full_like(az_ext, math.pi), az_ext)
+    width = 2 * math.pi / _CULL_BUCKETS
+    bucket = (torch.remainder(ray_azimuth.to(p.dtype), 2 * math.pi) / width).long().clamp(0, _CULL_BUCKETS - 1)
+    occupied = torch.zeros(k, _CULL_BUCKETS, device=p.device, dtype=torch.int64)
+    occupied[ray_bins, bucket] = 1
+    # Prefix sums over three laps of the circle answer wrapped interval queries directly.
+    csum = torch.cat([occupied.new_zeros(k, 1), torch.cumsum(occupied.repeat(1, 3), dim=1)], dim=1)  # [K, 3B + 1]
+    lo = (torch.floor((phi - az_ext) / width).long() + _CULL_BUCKETS).clamp(0, 3 * _CULL_BUCKETS - 1)
+    hi = (torch.floor((phi + az_ext) / width).long() + _CULL_BUCKETS).clamp(0, 3 * _CULL_BUCKETS - 1)
+    in_azimuth = (torch.gather(csum, 1, hi + 1) - torch.gather(csum, 1, lo) > 0)
+    el = ray_elevation.to(p.dtype)
+    el_lo = torch.full((k,), math.inf, device=p.device, dtype=p.dtype).scatter_reduce(0, ray_bins, el, "amin")
+    el_hi = torch.full((k,), -math.inf, device=p.device, dtype=p.dtype).scatter_reduce(0, ray_bins, el, "amax")
+    in_elevation = (theta + ext >= el_lo[:, None]) & (theta - ext <= el_hi[:, None])
+    return (in_azimuth & in_elevation).any(dim=0)
+
+
 def rasterize_lidar(
     means: Tensor,  # [N, 3] or [K, N, 3] world positions (per time bin)
     quats: Tensor,  # [N, 4] or [K, N, 4] wxyz
@@ -145,11 +198,20 @@ def rasterize_lidar(
     eps2d: float = 0.3,
     tile_size: int = 8,
     chunk_elems: int = DEFAULT_CHUNK_ELEMS,
+    ray_cutoff: Optional[Tensor] = None,  # [R] metres from the sensor origin (line of sight)
+    cull: bool = True,
 ) -> LidarRender:
     """Render lidar rays: expected/median range, features and alpha per ray (differentiable).
 
     The azimuth grid is rounded to a whole number of tiles (``tile_size`` cells of about
     ``azimuth_resolution``). See the module docstring for the time-bin convention.
+
+    With ``ray_cutoff``, ``alpha_before_cutoff`` [R, 1] is the sum of the alphas of the Gaussians
+    that the ray composites (alpha >= 1/255, before the transmittance is used up) whose range is
+    below the ray's cut-off (SplatAD's ``alpha_sum_until_points``; differentiable in the alphas,
+    the range test itself is a step). Without it the compositor does no extra work.
+
+    ``cull``: project only the Gaussians that :func:`seen_by_rays` keeps (same output, less work).
     """
     if means.dim() == 2:
         means, quats = means[None], quats[None]
@@ -173,6 +235,18 @@ def rasterize_lidar(
     tiles_x = max(1, round(2 * math.pi / azimuth_resolution / tile_size))
     width = tiles_x * tile_size
     az_res = 2 * math.pi / width
+    if cull and n > 0 and ray_azimuth.numel() > 0:
+        # Margin: a tile and the low-pass's 3 sigma, in the coarser of the two grid directions.
+        margin = (tile_size + 3.0 * math.sqrt(eps2d) + 1.0) * max(az_res, elevation_resolution)
+        keep = torch.nonzero(seen_by_rays(means.detach(), scales.detach(), lidar_from_world.detach(), ray_azimuth.detach(),
+                                          ray_elevation.detach(), ray_bins, margin)).squeeze(1)  # fmt: skip
+        if keep.numel() == 0:  # no Gaussian near any ray: nothing is hit
+            zeros = means.new_zeros(ray_azimuth.shape[0], 1)
+            return LidarRender(features=features.new_zeros(ray_azimuth.shape[0], features.shape[1]), alpha=zeros,
+                               range=zeros, median_range=zeros, alpha_before_cutoff=None if ray_cutoff is None else zeros)
+        if keep.numel() < n:
+            means, quats, scales = means[:, keep], quats[:, keep], scales[keep]
+            opacities, features, n = opacities[keep], features[keep], keep.numel()
     el = ray_elevation.detach()
     el_min = float(el.min()) - 2 * elevation_resolution if el.numel() else 0.0
     el_max = float(el.max()) + 2 * elevation_resolution if el.numel() else 0.0
@@ -200,6 +274,14 @@ def rasterize_lidar(
     num_tiles = k * tiles_x * tiles_y
     _, order = torch.sort(ray_tile, stable=True)
     per_tile = torch.bincount(ray_tile, minlength=num_tiles)
+    # Only tiles with rays are composited: a sparse training batch, or one time bin of a spinning
+    # lidar (a sector of the circle), leaves most tiles of the grid empty.
+    keep = (per_tile > 0)[isects.tile_ids]
+    if not bool(keep.all()):
+        kept_tiles = isects.tile_ids[keep]
+        offsets = torch.zeros(num_tiles + 1, dtype=torch.int64, device=device)
+        offsets[1:] = torch.cumsum(torch.bincount(kept_tiles, minlength=num_tiles), 0)
+        isects = replace(isects, gaussian_ids=isects.gaussian_ids[keep], tile_ids=kept_tiles, tile_offsets=offsets)
     start = torch.cumsum(per_tile, 0) - per_tile
     slot = torch.empty_like(order)
     slot[order] = torch.arange(order.numel(), device=device) - start[ray_tile[order]]
@@ -227,12 +309,20 @@ def rasterize_lidar(
     coeffs = quadratic_coefficients(
         dxc, m[:, 1].to(f64) - tile_cy[isects.tile_ids], proj.conics.reshape(-1, 3)[gid], opacities.repeat(k)[gid]
     )  # fmt: skip
+    cutoff = None
+    if ray_cutoff is not None:
+        # Padding slots get -inf: no Gaussian is in front of them.
+        cutoff = torch.full((num_tiles, slots), -math.inf, device=device, dtype=dtype)
+        cutoff[ray_tile, slot] = ray_cutoff.detach().to(dtype)
     plan = CompositePlan(
         tile_offsets=isects.tile_offsets, gaussian_ids=gid, basis=monomial_basis(ex, ey),
         slot_valid=slot_valid, block_elems=chunk_elems,
+        cutoff_depths=cutoff, gaussian_depths=None if cutoff is None else flat_range.detach(),
     )  # fmt: skip
-    pix, crossing = TileComposite.apply(coeffs, feats, plan)
+    composited = TileComposite.apply(coeffs, feats, plan)
+    pix, crossing = composited[0], composited[1]
     flat_slot = ray_tile * slots + slot
+    before_cutoff = composited[2].reshape(-1)[flat_slot][:, None] if cutoff is not None else None
     out = pix[flat_slot]  # [R, D + 2]
     d = features.shape[1]
     alpha = out[:, d + 1 : d + 2]
@@ -246,4 +336,5 @@ def rasterize_lidar(
     row_idx = (isects.tile_offsets[:-1][ray_tile] + cross).clamp_max(max(gid.numel() - 1, 0))
     med = flat_range[gid[row_idx]] if gid.numel() else torch.zeros_like(cross, dtype=dtype)
     median = torch.where(found[:, None], med[:, None], expected)
-    return LidarRender(features=out[:, :d], alpha=alpha, range=expected, median_range=median)
+    return LidarRender(features=out[:, :d], alpha=alpha, range=expected, median_range=median,
+                       alpha_before_cutoff=before_cutoff)  # fmt: skip

@@ -40,29 +40,30 @@ class Projection:
         return self.radii > 0
 
 
+def _rotation_entries(quats: Tensor) -> list:
+    """The nine entries (row-major, each [...]) of the rotation of wxyz quaternions [..., 4]."""
+    # Normalising with a floor keeps degenerate (zero) quaternions finite in value and gradient.
+    inv_norm = 1.0 / torch.linalg.vector_norm(quats, dim=-1).clamp_min(1e-12)
+    w, x, y, z = (q * inv_norm for q in torch.unbind(quats, dim=-1))
+    return [
+        1 - 2 * (y * y + z * z),
+        2 * (x * y - w * z),
+        2 * (x * z + w * y),
+        2 * (x * y + w * z),
+        1 - 2 * (x * x + z * z),
+        2 * (y * z - w * x),
+        2 * (x * z - w * y),
+        2 * (y * z + w * x),
+        1 - 2 * (x * x + y * y),
+    ]
+
+
 def quat_to_rotmat(quats: Tensor) -> Tensor:
     """Rotation matrices from wxyz quaternions (normalised here; a zero quaternion gives I).
 
     quats: [..., 4]; returns [..., 3, 3].
     """
-    # Normalising with a floor keeps degenerate (zero) quaternions finite in value and gradient.
-    norm = torch.linalg.vector_norm(quats, dim=-1, keepdim=True).clamp_min(1e-12)
-    w, x, y, z = torch.unbind(quats / norm, dim=-1)
-    rot = torch.stack(
-        [
-            1 - 2 * (y * y + z * z),
-            2 * (x * y - w * z),
-            2 * (x * z + w * y),
-            2 * (x * y + w * z),
-            1 - 2 * (x * x + z * z),
-            2 * (y * z - w * x),
-            2 * (x * z - w * y),
-            2 * (y * z + w * x),
-            1 - 2 * (x * x + y * y),
-        ],
-        dim=-1,
-    )
-    return rot.reshape(quats.shape[:-1] + (3, 3))
+    return torch.stack(_rotation_entries(quats), dim=-1).reshape(quats.shape[:-1] + (3, 3))
 
 
 def covariance_3d(quats: Tensor, scales: Tensor) -> Tensor:
@@ -96,18 +97,22 @@ def project_gaussians(
     int32 radii [C,N] (0 for culled Gaussians: depth outside (near, far), radius <= radius_clip,
     or 3-sigma box outside the image). Differentiable w.r.t. means, quats, scales, viewmats.
     """
-    if covars is None:
-        covars = covariance_3d(quats, scales)
-    rot = viewmats[:, :3, :3]  # [C, 3, 3]
-    trans = viewmats[:, :3, 3]  # [C, 3]
-    means_c = torch.einsum("cij,nj->cni", rot, means) + trans[:, None, :]  # [C, N, 3]
-    covars_c = torch.einsum("cij,njk,clk->cnil", rot, covars, rot)  # [C, N, 3, 3]
-
-    tx, ty, tz = torch.unbind(means_c, dim=-1)  # [C, N]
+    # Computed in float64 and returned in the input dtype: the camera gradient sums terms of
+    # size ~1e3 per Gaussian that cancel to ~1 (float32 rounding there is as large as the test
+    # tolerances), and written per element rather than as batched 3x3 products (several times
+    # slower on CPU); in float64 this is still cheaper than the float32 batched products.
+    out_dtype = means.dtype
+    f64 = torch.float64
+    rot = viewmats[:, :3, :3].to(f64)  # [C, 3, 3]
+    trans = viewmats[:, :3, 3].to(f64)  # [C, 3]
+    r = [[rot[:, i, k, None] for k in range(3)] for i in range(3)]  # [C, 1] entries
+    mx, my, mz = means.to(f64).unbind(-1)  # [N]
+    tx, ty, tz = (r[i][0] * mx + r[i][1] * my + r[i][2] * mz + trans[:, i, None] for i in range(3))  # [C, N]
     depth_ok = (tz > near_plane) & (tz < far_plane)
     # Culled Gaussians get a dummy depth so that no division below can produce inf/NaN (the
     # double-where keeps their gradients exactly zero).
     tz_safe = torch.where(depth_ok, tz, torch.ones_like(tz))
+    Ks = Ks.to(f64)
     fx = Ks[:, 0, 0, None]
     fy = Ks[:, 1, 1, None]
     cx = Ks[:, 0, 2, None]
@@ -118,31 +123,50 @@ def project_gaussians(
     lim_x_neg = cx / fx + 0.3 * tan_fovx
     lim_y_pos = (height - cy) / fy + 0.3 * tan_fovy
     lim_y_neg = cy / fy + 0.3 * tan_fovy
-    u = torch.minimum(torch.maximum(tx / tz_safe, -lim_x_neg), lim_x_pos)
-    v = torch.minimum(torch.maximum(ty / tz_safe, -lim_y_neg), lim_y_pos)
+    inv_z = 1.0 / tz_safe
+    u = torch.minimum(torch.maximum(tx * inv_z, -lim_x_neg), lim_x_pos)
+    v = torch.minimum(torch.maximum(ty * inv_z, -lim_y_neg), lim_y_pos)
 
     # Jacobian rows: [fx/z, 0, -fx*x/z^2] and [0, fy/z, -fy*y/z^2] with x/z, y/z clamped.
-    zero = torch.zeros_like(tz_safe)
-    jac = torch.stack(
-        [fx / tz_safe, zero, -fx * u / tz_safe, zero, fy / tz_safe, -fy * v / tz_safe], dim=-1
-    ).reshape(tz.shape + (2, 3))
-    cov2d = jac @ covars_c @ jac.transpose(-1, -2)  # [C, N, 2, 2]
-    c_xx = cov2d[..., 0, 0]
-    c_xy = 0.5 * (cov2d[..., 0, 1] + cov2d[..., 1, 0])
-    c_yy = cov2d[..., 1, 1]
+    jx = fx * inv_z  # [C, N]
+    jy = fy * inv_z
+    jxz = -jx * u
+    jyz = -jy * v
+    if covars is None:
+        # cov2d = (J R_cam M)(J R_cam M)^T with M = R(q) diag(s): the two rows of J R_cam M.
+        q = _rotation_entries(quats.to(f64))  # 9 x [N]
+        sx, sy, sz = scales.to(f64).unbind(-1)
+        m = [[q[3 * k] * sx, q[3 * k + 1] * sy, q[3 * k + 2] * sz] for k in range(3)]  # M[k][j], [N]
+        ax = [jx * r[0][k] + jxz * r[2][k] for k in range(3)]  # row x of J R_cam, [C, N]
+        ay = [jy * r[1][k] + jyz * r[2][k] for k in range(3)]
+        row_x = [ax[0] * m[0][j] + ax[1] * m[1][j] + ax[2] * m[2][j] for j in range(3)]
+        row_y = [ay[0] * m[0][j] + ay[1] * m[1][j] + ay[2] * m[2][j] for j in range(3)]
+        c_xx = row_x[0] * row_x[0] + row_x[1] * row_x[1] + row_x[2] * row_x[2]
+        c_xy = row_x[0] * row_y[0] + row_x[1] * row_y[1] + row_x[2] * row_y[2]
+        c_yy = row_y[0] * row_y[0] + row_y[1] * row_y[1] + row_y[2] * row_y[2]
+    else:
+        cov_c = torch.einsum("cij,njk,clk->cnil", rot, covars.to(f64), rot)  # [C, N, 3, 3]
+        s00, s01, s02 = cov_c[..., 0, 0], cov_c[..., 0, 1], cov_c[..., 0, 2]
+        s11, s12, s22 = cov_c[..., 1, 1], cov_c[..., 1, 2], cov_c[..., 2, 2]
+        c_xx = jx * jx * s00 + 2 * jx * jxz * s02 + jxz * jxz * s22
+        c_xy = jx * jy * s01 + jx * jyz * s02 + jxz * jy * s12 + jxz * jyz * s22
+        c_yy = jy * jy * s11 + 2 * jy * jyz * s12 + jyz * jyz * s22
     det_orig = c_xx * c_yy - c_xy * c_xy
     c_xx = c_xx + eps2d
     c_yy = c_yy + eps2d
     det = (c_xx * c_yy - c_xy * c_xy).clamp_min(1e-10)
-    conics = torch.stack([c_yy / det, -c_xy / det, c_xx / det], dim=-1)
+    inv_det = 1.0 / det
+    conics = torch.stack([c_yy * inv_det, -c_xy * inv_det, c_xx * inv_det], dim=-1)
 
-    means2d = torch.stack(
-        [fx * tx / tz_safe + cx, fy * ty / tz_safe + cy], dim=-1
-    )  # [C, N, 2]
+    means2d = torch.stack([fx * tx * inv_z + cx, fy * ty * inv_z + cy], dim=-1)  # [C, N, 2]
 
+    means2d = means2d.to(out_dtype)
     with torch.no_grad():
-        b = 0.5 * (c_xx + c_yy)
-        v1 = b + torch.sqrt(torch.clamp(b * b - det, min=0.01))
+        # Radii from the covariance in the output dtype, as gsplat computes them (identical
+        # integer radii; the ceil is sensitive to the last bit).
+        r_xx, r_xy, r_yy = c_xx.to(out_dtype), c_xy.to(out_dtype), c_yy.to(out_dtype)
+        b = 0.5 * (r_xx + r_yy)
+        v1 = b + torch.sqrt(torch.clamp(b * b - (r_xx * r_yy - r_xy * r_xy).clamp_min(1e-10), min=0.01))
         radius = torch.ceil(3.0 * torch.sqrt(v1)).clamp(max=_MAX_RADIUS)
         radius = torch.nan_to_num(radius, nan=0.0, posinf=_MAX_RADIUS)
         valid = depth_ok & (radius > radius_clip)
@@ -157,11 +181,12 @@ def project_gaussians(
     compensations = None
     if calc_compensations:
         compensations = torch.sqrt(torch.clamp(det_orig / det, min=0.0))
+        compensations = compensations.to(out_dtype)
     return Projection(
         means2d=means2d,
-        conics=conics,
-        depths=tz,
+        conics=conics.to(out_dtype),
+        depths=tz.to(out_dtype),
         radii=radii,
-        covars2d=torch.stack([c_xx, c_xy, c_yy], dim=-1),
+        covars2d=torch.stack([c_xx, c_xy, c_yy], dim=-1).to(out_dtype),
         compensations=compensations,
     )
