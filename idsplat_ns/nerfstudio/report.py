@@ -20,6 +20,10 @@ ROWS = (
     ("lpips", "LPIPS"),
     ("mota@2m", "tracking MOTA @ 2 m"),
     ("motp@2m", "tracking MOTP @ 2 m (m)"),
+    ("lidar_depth_median_sq_err", "lidar depth median squared error (m^2)"),
+    ("lidar_intensity_rmse", "lidar intensity RMSE"),
+    ("lidar_raydrop_acc", "lidar ray-drop accuracy"),
+    ("lidar_chamfer", "lidar Chamfer distance (m)"),
     ("render_mpix_per_s", "render speed (MP/s)"),
 )
 
