@@ -19,10 +19,12 @@ the points is kept. Heights are left to the points.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Optional
 
 import numpy as np
+
+from idsplat_ns.instances.tracks import InstanceTracks
 
 # Typical (length, width) in metres per class keyword; the first keyword found in the label wins.
 DEFAULT_CLASS_SIZES: tuple[tuple[str, float, float], ...] = (
@@ -126,13 +128,12 @@ def travel_direction(poses: np.ndarray, valid: np.ndarray) -> Optional[np.ndarra
     return total / max(np.linalg.norm(total), 1e-12)
 
 
-def complete_centres(tracks, sensor_positions: np.ndarray, config: AmodalCentreConfig = AmodalCentreConfig()):
-    """A copy of ``tracks`` (InstanceTracks) whose dynamic instances have amodal canonical origins.
-
-    ``sensor_positions`` [F, 3]: the (main lidar) sensor in the world at each of the tracks' frames.
-    """
-    from dataclasses import replace
-
+def complete_centres(
+    tracks: InstanceTracks,
+    sensor_positions: np.ndarray,  # [F, 3] the (main lidar) sensor in the world at each of the tracks' frames
+    config: AmodalCentreConfig = AmodalCentreConfig(),
+) -> InstanceTracks:
+    """A copy of ``tracks`` whose dynamic instances have amodal canonical origins."""
     if not config.enabled:
         return tracks
     out, moved = [], {}

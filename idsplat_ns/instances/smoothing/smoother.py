@@ -196,6 +196,21 @@ def _outlier_threshold(errors: np.ndarray, config: SmoothingConfig) -> float:  #
     return max(config.outlier_threshold, config.adaptive_outlier_factor * float(np.median(errors)))
 
 
+def _flag_outliers(
+    measured: np.ndarray,  # [T, 4, 4] recentred measurements
+    valid: np.ndarray,  # [T] bool
+    values: gtsam.Values,
+    config: SmoothingConfig,
+) -> tuple[np.ndarray, float, np.ndarray]:
+    """Whitened measurement errors [T] (NaN where none) of ``values``, the outlier threshold and
+    the inlier mask [T]."""
+    errors = np.full(len(measured), np.nan)
+    for t in np.flatnonzero(valid):
+        errors[t] = F.whitened_measurement_error(measured[t], values.atPose3(F.pose_key(int(t))), config)
+    threshold = _outlier_threshold(errors[valid], config)
+    return errors, threshold, valid & (errors <= threshold)
+
+
 def smooth_trajectory(
     times: np.ndarray,  # [T] seconds, strictly increasing
     poses: np.ndarray,  # [T, 4, 4] measured poses (canonical -> world); rows where ~valid are ignored
@@ -228,18 +243,11 @@ def smooth_trajectory(
     values = _values_from(init)
     first = _optimize(_build_graph(times, measured, valid, init, config), values, config.first_pass_iterations)
 
-    errors = np.full(len(times), np.nan)
-    for t in np.flatnonzero(valid):
-        errors[t] = F.whitened_measurement_error(measured[t], first.atPose3(F.pose_key(int(t))), config)
-    threshold = _outlier_threshold(errors[valid], config)
-    inliers = valid & (errors <= threshold)
+    errors, threshold, inliers = _flag_outliers(measured, valid, first, config)
     if inliers.sum() < config.reconverge_below_inlier_fraction * valid.sum():
         # The single first iteration did not converge: iterate it before trusting its residuals.
         first = _optimize(_build_graph(times, measured, valid, init, config), first, config.final_iterations)
-        for t in np.flatnonzero(valid):
-            errors[t] = F.whitened_measurement_error(measured[t], first.atPose3(F.pose_key(int(t))), config)
-        threshold = _outlier_threshold(errors[valid], config)
-        inliers = valid & (errors <= threshold)
+        errors, threshold, inliers = _flag_outliers(measured, valid, first, config)
     if not inliers.any():
         # Everything looks wrong: keep the measurement that agrees best rather than none.
         inliers[int(np.nanargmin(errors))] = True
