@@ -20,7 +20,7 @@ from pathlib import Path
 BIN = Path(sys.executable).parent
 COLUMNS = (
     ("psnr", "PSNR"), ("ssim", "SSIM"), ("dpsnr", "DPSNR"), ("mota@2m", "MOTA@2m"), ("motp@2m", "MOTP@2m"),
-    ("recall@2m", "recall@2m"), ("lidar_depth_median_sq_err", "depth med. sq. err"),
+    ("recall@2m", "recall@2m"), ("all_mota@2m", "MOTA@2m (all)"), ("lidar_depth_median_sq_err", "depth med. sq. err"),
     ("lidar_intensity_rmse", "intensity RMSE"), ("lidar_raydrop_acc", "ray-drop acc."), ("lidar_chamfer", "Chamfer"),
 )
 

@@ -29,6 +29,10 @@ from idsplat_ns.instances.static_conversion import StaticConversionConfig, conve
 from idsplat_ns.instances.trajectory_estimation import TrajectoryConfig, estimate_trajectories
 from idsplat_ns.instances.tracks import InstanceTracks
 
+# Bumped when what the registration stage stores changes (2: per-point origin frames).
+TRACKS_FORMAT = 2
+
+
 @dataclass(frozen=True)
 class PreprocessConfig:
     """Every setting of instance preprocessing (defaults: the paper's)."""
@@ -104,6 +108,8 @@ def _smooth(tracks: InstanceTracks, config: SmoothingConfig) -> InstanceTracks:
     for inst in tracks.instances:
         sm = smooth_trajectory(times, inst.poses, inst.valid, config)
         lo, hi = sm.span
+        # Points of measurements the smoother rejects were placed by a wrong registration.
+        inst = inst.keep_points_of_frames(sm.inliers) if config.drop_outlier_points else inst
         out.append(replace(inst, poses=np.asarray(sm.poses), valid=(times >= lo) & (times <= hi), measured_valid=inst.valid))
     return replace(tracks, instances=out, metadata={**tracks.metadata, "smoothed": True})
 
@@ -183,7 +189,7 @@ def run_preprocessing(
 
     # 4. Registration.
     t0 = time.perf_counter()
-    reg_key = hash_json({"features": feat_key, "trajectory": asdict(config.trajectory)})
+    reg_key = hash_json({"features": feat_key, "trajectory": asdict(config.trajectory), "format": TRACKS_FORMAT})
     tracks, cached = _cached_file(
         cache_dir / f"registration-{reg_key}.npz",
         lambda: estimate_trajectories(scene, lifted, features, config.trajectory, progress),

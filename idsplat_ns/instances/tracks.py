@@ -42,6 +42,23 @@ class InstanceTrack:
     measured_valid: Optional[np.ndarray] = None
     """[F] bool frames with a registration measurement, kept once smoothing has replaced ``poses``
     and ``valid`` (None before smoothing, when it equals ``valid``)."""
+    point_frames: Optional[np.ndarray] = None
+    """[N] int frame each canonical point was registered from (None where not recorded), so that
+    points of frames the smoother rejects can leave the canonical set."""
+
+    def keep_points_of_frames(self, frames: np.ndarray, min_points: int = 10) -> "InstanceTrack":
+        """A copy whose canonical points come only from ``frames`` ([F] bool); unchanged when the
+        origin frames are unknown or fewer than ``min_points`` would remain."""
+        from dataclasses import replace
+
+        if self.point_frames is None:
+            return self
+        keep = np.asarray(frames, bool)[self.point_frames]
+        if keep.all() or keep.sum() < min_points:
+            return self
+        colors = None if self.canonical_colors is None else self.canonical_colors[keep]
+        return replace(self, canonical_points=self.canonical_points[keep], canonical_colors=colors,
+                       point_frames=self.point_frames[keep])
 
     @property
     def num_valid(self) -> int:
@@ -96,6 +113,8 @@ class InstanceTracks:
                     arrays[f"{key}_colors"] = inst.canonical_colors
                 if inst.measured_valid is not None:
                     arrays[f"{key}_measured_valid"] = inst.measured_valid
+                if inst.point_frames is not None:
+                    arrays[f"{key}_point_frames"] = inst.point_frames
         save_npz(path, arrays, {"instances": index, "metadata": self.metadata})
 
     @classmethod
@@ -116,6 +135,7 @@ class InstanceTracks:
                 point_counts=data[f"{key}_counts"], fitness=data[f"{key}_fitness"],
                 canonical_frame=entry["canonical_frame"],
                 measured_valid=data.get(f"{key}_measured_valid"),
+                point_frames=data.get(f"{key}_point_frames"),
             )
             (out.instances if entry["group"] == "dynamic" else out.static_instances).append(inst)
         return out

@@ -43,7 +43,9 @@ class IDSplatPipeline(VanillaPipeline):
         from idsplat_ns.eval.trajectory_eval import flatten_metrics, tracking_summary
 
         with torch.no_grad():
-            return flatten_metrics(tracking_summary(scene, trajectories.positions_at))
+            observed = flatten_metrics(tracking_summary(scene, trajectories.positions_at))
+            every = flatten_metrics(tracking_summary(scene, trajectories.positions_at, observed=None), prefix="all_")
+        return {**observed, **every}
 
     def _held_out_sweeps(self) -> list:
         """Lidar sweeps of the evaluation frames (none for camera-only models or scenes)."""

@@ -55,6 +55,11 @@ class SmoothingConfig:
     outlier at the end of a track would otherwise keep the instance alive where the CT model only
     extrapolates (measured: 8-13 m from the truth on the synthetic street). None: every
     measurement extends the span."""
+    drop_outlier_points: bool = True
+    """Ours: the canonical points of a measurement flagged as an outlier leave the instance's point
+    set (a wrong registration put them in the wrong place of the canonical frame, where they would
+    seed misplaced Gaussians and skew the amodal centre). False keeps every registered point, as
+    the paper's pipeline does."""
     min_noise_dt: float = 1e-3
     """Time steps shorter than this [s] use this value in the random-walk sigmas, so that
     nearly coincident timestamps do not make the random walks infinitely stiff."""
