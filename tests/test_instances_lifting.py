@@ -14,7 +14,7 @@ from idsplat_ns.data.geometry import invert_pose, transform_points
 from idsplat_ns.data.tracks import points_in_box
 from idsplat_ns.errors import IDSplatError
 from idsplat_ns.instances.features.base import PointFeatures
-from idsplat_ns.instances.lifting import LiftingConfig, erode_instance_map, lift_instances
+from idsplat_ns.instances.lifting import LiftingConfig, erode_instance_map, erode_instance_map_adaptive, lift_instances
 from idsplat_ns.instances.masks.base import write_instance_map, write_labels
 from idsplat_ns.instances.masks.gt_boxes import GtBoxMasksConfig, GtBoxMaskSource
 from idsplat_ns.instances.masks.precomputed import PrecomputedMasksConfig, PrecomputedMaskSource, load_mask_set
@@ -50,6 +50,21 @@ def test_erosion_matches_per_instance_binary_erosion():
         ref = ndimage.binary_erosion(ids == k, structure=disk, border_value=1)
         np.testing.assert_array_equal(out == k, ref)
     assert (out == 3).sum() == 0 and (out == 1).sum() < (ids == 1).sum()
+
+
+def test_adaptive_erosion_trims_large_masks_and_keeps_small_ones():
+    ids = np.zeros((60, 80), np.uint16)
+    ids[5:45, 5:40] = 1  # large: the full radius keeps most of it
+    ids[50:54, 10:70] = 2  # 4 px tall, like a far bus: one pixel of erosion removes half of it
+    ids[20:28, 50:58] = 3  # 8x8: radius 3 leaves 4 of 64 pixels, radius 1 leaves 36
+    out = erode_instance_map_adaptive(ids, 3, 0.5)
+    np.testing.assert_array_equal(out == 1, erode_instance_map(ids, 3) == 1)
+    np.testing.assert_array_equal(out == 2, ids == 2)  # kept whole
+    np.testing.assert_array_equal(out == 3, erode_instance_map(ids, 1) == 3)
+    assert set(np.unique(out)) == {0, 1, 2, 3}
+    # 0 (or radius 0) is the paper's fixed erosion
+    np.testing.assert_array_equal(erode_instance_map_adaptive(ids, 3, 0.0), erode_instance_map(ids, 3))
+    np.testing.assert_array_equal(erode_instance_map_adaptive(ids, 0, 0.5), ids)
 
 
 def test_oracle_masks_cover_projected_boxes(scene, oracle_masks):

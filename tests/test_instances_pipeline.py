@@ -89,11 +89,29 @@ def test_second_run_reuses_every_cache_and_smooths(street, tmp_path, capsys):
         measured = np.flatnonzero(inst.measured_valid)
         assert np.all(np.diff(span) == 1) and span[0] >= measured[0] and span[-1] <= measured[-1]
         assert inst.measured_valid[span[0]] and inst.measured_valid[span[-1]]
+        # canonical points remember their frame, and come only from measurements (outliers dropped)
+        assert inst.point_frames is not None and len(inst.point_frames) == len(inst.canonical_points)
+        assert np.all(inst.measured_valid[inst.point_frames])
     # a changed setting invalidates only the stages after it
     third = run_preprocessing(scene, _config(root, smoothing=None, trajectory=TrajectoryConfig(min_points=11)),
                               tmp_path / "cache", progress=False, verbose=False)
     cached = {t.name: t.cached for t in third.timings}
     assert cached["features"] and not cached["registration"]
+
+
+def test_keep_points_of_frames():
+    from idsplat_ns.instances.tracks import InstanceTrack
+
+    pts = np.arange(30, dtype=float).reshape(10, 3)
+    inst = InstanceTrack(1, "car", pts, np.zeros((10, 3), np.uint8), np.tile(np.eye(4), (3, 1, 1)),
+                         np.ones(3, bool), np.full(3, 5), np.ones(3), 0, point_frames=np.repeat([0, 1, 2], [4, 3, 3]))
+    kept = inst.keep_points_of_frames(np.array([True, False, True]), min_points=3)
+    np.testing.assert_array_equal(kept.canonical_points, pts[[0, 1, 2, 3, 7, 8, 9]])
+    assert len(kept.canonical_colors) == 7 and list(kept.point_frames) == [0, 0, 0, 0, 2, 2, 2]
+    # too few would remain, or origins unknown: unchanged
+    assert inst.keep_points_of_frames(np.array([False, True, False]), min_points=4) is inst
+    no_frames = InstanceTrack(1, "car", pts, None, inst.poses, inst.valid, inst.point_counts, inst.fitness, 0)
+    assert no_frames.keep_points_of_frames(np.array([True, False, False])) is no_frames
 
 
 def test_interrupted_write_leaves_no_cache_entry(tmp_path):

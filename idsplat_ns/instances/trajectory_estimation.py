@@ -34,6 +34,19 @@ class TrajectoryConfig:
     """RANSAC settings."""
     min_points: int = 10
     """Instances never seen with at least this many points are dropped."""
+    min_segment_frames: int = 3
+    """Ours: observations of a mask instance that no registration reached form a new instance of
+    their own when at least this many of them register together (a turning car seen from the
+    front, then only from behind, shares no surface between the two views). The paper keeps one
+    instance per mask ID and drops them. 0 disables."""
+    chain_neighbours: int = 3
+    """Ours: a frame that fails against the whole canonical set is registered again against the
+    canonical points of only its (up to) this many nearest registered frames in time, outwards
+    from the registered ones. A turning car shows other faces than in its dense frames, so the
+    whole set scores below the fitness threshold while its neighbours' view matches. 0: the
+    paper's single pass."""
+    chain_max_gap: float = 1.0
+    """Seconds: neighbours further away in time are not used by the chained registration."""
     heading_flips: HeadingFlipConfig = field(default_factory=HeadingFlipConfig)
     """Front/back flips of registrations, found from the direction of travel and turned back
     (ours; see instances/heading_flips.py)."""
@@ -54,8 +67,11 @@ def estimate_instance_track(
     num_frames: int,
     config: TrajectoryConfig,
     times: Optional[np.ndarray] = None,  # [F] seconds; needed for heading-flip correction
+    source_id: Optional[int] = None,
 ) -> InstanceTrack:
-    """Poses of one instance at every frame where registration succeeds."""
+    """Poses of one instance at every frame where registration succeeds. ``source_id`` is the mask
+    instance whose lifted points and features these are (default ``iid``)."""
+    fid = iid if source_id is None else source_id
     counts = np.zeros(num_frames, np.int64)
     for o in observations:
         counts[o.frame] = len(o.points)
@@ -69,7 +85,7 @@ def estimate_instance_track(
     valid[ref.frame], fitness[ref.frame] = True, 1.0
 
     def colours_of(o: InstanceObservation) -> Optional[np.ndarray]:
-        return None if features is None or not features.colors else features.colors.get((iid, o.frame))
+        return None if features is None or not features.colors else features.colors.get((fid, o.frame))
 
     canon_pts = [ref.points - centre]
     canon_cols = [colours_of(ref)]
@@ -85,21 +101,27 @@ def estimate_instance_track(
     else:
         if features is None:
             raise ValueError("registration needs point features (pass the extractor's output, or use method='centroid')")
-        canon_feat = [_obs_features(features, iid, ref)]
-        for o in order[1:]:
-            result = register(np.concatenate(canon_pts), np.concatenate(canon_feat), o.points,
-                              _obs_features(features, iid, o), config.registration)
-            fitness[o.frame] = result.fitness
-            if not result.success:
-                continue
-            poses[o.frame], valid[o.frame] = result.transform, True
-            canon_pts.append(transform_points(invert_pose(result.transform), o.points))
-            canon_feat.append(_obs_features(features, iid, o))
+        canon_feat = [_obs_features(features, fid, ref)]
+
+        def accept(o: InstanceObservation, transform: np.ndarray) -> None:
+            poses[o.frame], valid[o.frame] = transform, True
+            canon_pts.append(transform_points(invert_pose(transform), o.points))
+            canon_feat.append(_obs_features(features, fid, o))
             canon_cols.append(colours_of(o))
             canon_frames.append(o.frame)
+
+        for o in order[1:]:
+            result = register(np.concatenate(canon_pts), np.concatenate(canon_feat), o.points,
+                              _obs_features(features, fid, o), config.registration)
+            fitness[o.frame] = result.fitness
+            if result.success:
+                accept(o, result.transform)
+        if config.chain_neighbours > 0 and times is not None:
+            _register_chain(observations, poses, valid, fitness, canon_pts, canon_feat, canon_frames, times, config,
+                            lambda o: _obs_features(features, fid, o), accept)
         if config.heading_flips.enabled and times is not None:
             by_frame = {o.frame: o for o in observations}
-            _correct_flips(poses, valid, fitness, counts, canon_pts, canon_frames, by_frame, times, config)
+            _correct_flips(poses, valid, fitness, counts, canon_pts, canon_cols, canon_frames, by_frame, times, config)
     colors = None if any(c is None for c in canon_cols) else np.concatenate(canon_cols)
     if config.method == "centroid":
         canon_frames = [ref.frame] + [o.frame for o in order[1:]]
@@ -111,20 +133,88 @@ def estimate_instance_track(
     )
 
 
+def motion_prior_pose(
+    neighbour_pose: np.ndarray,  # [4, 4] canonical -> world at a nearby time
+    source: np.ndarray,  # [N, 3] canonical points
+    target: np.ndarray,  # [M, 3] world points at the frame to register
+    config: RegistrationConfig,
+    radii: tuple[float, ...] = (1.0, 0.5),
+) -> np.ndarray:
+    """Pose from a motion prior: the neighbour's rotation, the translation that puts the source's
+    centroid on the target's, then point-to-plane ICP with shrinking pair distances."""
+    R = neighbour_pose[:3, :3]
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = target.mean(0) - R @ source.mean(0)
+    for radius in radii + (config.icp_distance,):
+        T = icp_point_to_plane(T, source, target, max(config.icp_iterations, 10), radius)
+    return T
+
+
+def _register_chain(
+    observations: list[InstanceObservation],
+    poses: np.ndarray,  # [F, 4, 4] (updated through ``accept``)
+    valid: np.ndarray,  # [F] bool (updated through ``accept``)
+    fitness: np.ndarray,  # [F] (updated in place)
+    canon_pts: list[np.ndarray],
+    canon_feat: list[np.ndarray],
+    canon_frames: list[int],
+    times: np.ndarray,  # [F] seconds
+    config: TrajectoryConfig,
+    features_of,
+    accept,
+) -> None:
+    """Register failed frames against their nearest registered neighbours' canonical points,
+    nearest-in-time first, until no more succeed (see ``TrajectoryConfig.chain_neighbours``)."""
+    tried: set[tuple[int, tuple[int, ...]]] = set()
+    while True:
+        pending = [o for o in observations if not valid[o.frame]]
+        candidates = []
+        for o in pending:
+            gaps = np.abs(times[np.asarray(canon_frames)] - times[o.frame])
+            near = [k for k in np.argsort(gaps, kind="stable")[: config.chain_neighbours] if gaps[k] <= config.chain_max_gap]
+            key = (o.frame, tuple(sorted(canon_frames[k] for k in near)))
+            if near and key not in tried:
+                candidates.append((float(gaps[near[0]]), o, near, key))
+        if not candidates:
+            return
+        succeeded = False
+        for _, o, near, key in sorted(candidates, key=lambda c: (c[0], c[1].frame)):
+            tried.add(key)
+            source = np.concatenate([canon_pts[k] for k in near])
+            result = register(source, np.concatenate([canon_feat[k] for k in near]), o.points, features_of(o),
+                              config.registration)
+            transform, fit = result.transform, result.fitness if result.success else 0.0
+            # Feature matches of a far car are weak: also start from the nearest neighbour's pose.
+            prior = motion_prior_pose(poses[canon_frames[near[0]]], source, o.points, config.registration)
+            prior_fit = registration_fitness(prior, source, o.points, config.registration.inlier_distance)
+            if prior_fit > fit:
+                transform, fit = prior, prior_fit
+            fitness[o.frame] = max(fitness[o.frame], result.fitness, prior_fit)
+            if fit >= config.registration.fitness_threshold:
+                accept(o, transform)
+                succeeded = True
+                break  # the neighbourhoods changed: recompute them
+        if not succeeded:
+            return
+
+
 def _correct_flips(
     poses: np.ndarray,  # [F, 4, 4] (updated in place)
     valid: np.ndarray,  # [F] bool
     fitness: np.ndarray,  # [F] (updated in place)
     counts: np.ndarray,  # [F] lidar points per frame
     canon_pts: list[np.ndarray],  # canonical chunks, one per registered frame (updated in place)
-    canon_frames: list[int],  # the frame of each chunk
+    canon_cols: list[Optional[np.ndarray]],  # their colours (updated in place)
+    canon_frames: list[int],  # the frame of each chunk (updated in place)
     by_frame: dict[int, InstanceObservation],
     times: np.ndarray,  # [F] seconds
     config: TrajectoryConfig,
 ) -> None:
     """Turn back front/back-flipped registrations (see heading_flips.py): half a turn about the box
     centre of the unflipped canonical points, refined by ICP on them, and re-map those frames'
-    canonical points."""
+    canonical points. A frame whose turned pose does not reach the fitness threshold either is
+    dropped (it disagrees with the motion both ways)."""
     flips = config.heading_flips
     t = poses[valid, :3, 3]
     if len(t) < 2 or np.max(np.linalg.norm(t[:, None] - t[None], axis=-1)) < flips.min_track_displacement:
@@ -142,9 +232,15 @@ def _correct_flips(
         target = by_frame[f].points
         turned = flip_about(poses[f], centre)
         refined = icp_point_to_plane(turned, reference, target, reg.icp_iterations, reg.icp_distance)
-        poses[f] = refined
-        fitness[f] = registration_fitness(refined, reference, target, reg.inlier_distance)
-        canon_pts[k] = transform_points(invert_pose(refined), target)
+        fit = registration_fitness(refined, reference, target, reg.inlier_distance)
+        if fit >= reg.fitness_threshold:
+            poses[f], fitness[f] = refined, fit
+            canon_pts[k] = transform_points(invert_pose(refined), target)
+        else:
+            valid[f] = False
+    for k in reversed(range(len(canon_frames))):
+        if not valid[canon_frames[k]]:
+            del canon_pts[k], canon_cols[k], canon_frames[k]
 
 
 def estimate_trajectories(
@@ -157,10 +253,26 @@ def estimate_trajectories(
     """Trajectories of every lifted instance (before static conversion and smoothing)."""
     tracks = []
     items = sorted(lifted.observations.items())
+    times = np.asarray(scene.frame_times, np.float64)
+    next_id = max((iid for iid, _ in items), default=0) + 1
+    split_from: dict[int, int] = {}
     for iid, obs in tqdm(items, desc="registration", disable=not progress):
         if not obs or max(len(o.points) for o in obs) < config.min_points:
             continue
-        tracks.append(estimate_instance_track(iid, lifted.labels[iid], obs, features, scene.num_frames, config,
-                                              np.asarray(scene.frame_times, np.float64)))
-    meta = {"trajectory_method": config.method, "features": None if features is None else features.extractor}
+        track = estimate_instance_track(iid, lifted.labels[iid], obs, features, scene.num_frames, config, times)
+        tracks.append(track)
+        rest = [o for o in obs if not track.valid[o.frame]]
+        # Frames no registration reached may still agree among themselves (a car seen from the
+        # front, then only from behind): they become an instance of their own.
+        while config.method == "registration" and config.min_segment_frames > 0 and len(rest) >= config.min_segment_frames:
+            segment = estimate_instance_track(next_id, lifted.labels[iid], rest, features, scene.num_frames, config,
+                                              times, source_id=iid)
+            if segment.num_valid < config.min_segment_frames:
+                break
+            tracks.append(segment)
+            split_from[next_id] = iid
+            next_id += 1
+            rest = [o for o in rest if not segment.valid[o.frame]]
+    meta = {"trajectory_method": config.method, "features": None if features is None else features.extractor,
+            "split_from": {str(k): v for k, v in split_from.items()}}
     return InstanceTracks(np.asarray(scene.frame_indices), np.asarray(scene.frame_times, np.float64), tracks, [], meta)

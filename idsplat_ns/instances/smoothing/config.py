@@ -55,6 +55,12 @@ class SmoothingConfig:
     outlier at the end of a track would otherwise keep the instance alive where the CT model only
     extrapolates (measured: 8-13 m from the truth on the synthetic street). None: every
     measurement extends the span."""
+    gross_yaw_deviation: Optional[float] = 1.5707963267948966
+    """Ours: measurements whose yaw is more than this (rad) from the circular mean of their two
+    neighbours on each side are outliers from the start. A half-turned registration among the
+    measurements of a turning car made the CT states loop through it (and flag the good
+    measurements instead). A vehicle turns far less than 90° between a measurement and its
+    neighbours. None: the paper's Huber first pass alone."""
     drop_outlier_points: bool = True
     """Ours: the canonical points of a measurement flagged as an outlier leave the instance's point
     set (a wrong registration put them in the wrong place of the canonical frame, where they would

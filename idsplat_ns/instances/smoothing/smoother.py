@@ -112,6 +112,26 @@ class _InitialGuess:
     shared: np.ndarray  # [3, 3]
 
 
+def gross_yaw_outliers(
+    poses: np.ndarray,  # [T, 4, 4]
+    valid: np.ndarray,  # [T] bool
+    max_deviation: float,
+    neighbours: int = 2,
+) -> np.ndarray:
+    """[T] bool: valid measurements whose yaw is more than ``max_deviation`` (rad) from the
+    circular mean of up to ``neighbours`` valid measurements on each side (itself left out)."""
+    idx = np.flatnonzero(valid)
+    yaw = np.array([_yaw(poses[i, :3, :3]) for i in idx])
+    out = np.zeros(len(poses), bool)
+    for j, i in enumerate(idx):
+        near = np.r_[yaw[max(0, j - neighbours) : j], yaw[j + 1 : j + 1 + neighbours]]
+        if len(near) == 0:
+            continue
+        ref = math.atan2(float(np.sin(near).sum()), float(np.cos(near).sum()))
+        out[i] = abs((yaw[j] - ref + math.pi) % (2 * math.pi) - math.pi) > max_deviation
+    return out
+
+
 def _initial_guess(times: np.ndarray, poses: np.ndarray, valid: np.ndarray) -> _InitialGuess:
     """Robust start: running medians of measured positions and yaws, interpolated over gaps; the
     shared rotation from the direction of travel; speeds and curvatures by finite differences."""
@@ -239,15 +259,21 @@ def smooth_trajectory(
         u, _, vt = np.linalg.svd(measured[t, :3, :3])
         measured[t, :3, :3] = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
 
-    init = _initial_guess(times, measured, valid)
+    usable = valid.copy()
+    if config.gross_yaw_deviation is not None and valid.sum() >= 3:
+        # Half-turn registration errors pull the CT states into loops that Huber cannot undo.
+        usable &= ~gross_yaw_outliers(measured, valid, config.gross_yaw_deviation)
+    init = _initial_guess(times, measured, usable)
     values = _values_from(init)
-    first = _optimize(_build_graph(times, measured, valid, init, config), values, config.first_pass_iterations)
+    first = _optimize(_build_graph(times, measured, usable, init, config), values, config.first_pass_iterations)
 
     errors, threshold, inliers = _flag_outliers(measured, valid, first, config)
-    if inliers.sum() < config.reconverge_below_inlier_fraction * valid.sum():
+    inliers &= usable
+    if inliers.sum() < config.reconverge_below_inlier_fraction * usable.sum():
         # The single first iteration did not converge: iterate it before trusting its residuals.
-        first = _optimize(_build_graph(times, measured, valid, init, config), first, config.final_iterations)
+        first = _optimize(_build_graph(times, measured, usable, init, config), first, config.final_iterations)
         errors, threshold, inliers = _flag_outliers(measured, valid, first, config)
+        inliers &= usable
     if not inliers.any():
         # Everything looks wrong: keep the measurement that agrees best rather than none.
         inliers[int(np.nanargmin(errors))] = True
