@@ -308,9 +308,60 @@ def test_first_pass_that_did_not_converge_is_iterated() -> None:
     valid = np.zeros(len(times), bool)
     for k, (x, y, z, yaw) in zip(steps, xyzyaw):
         poses[k], valid[k] = make_pose(rot_z(yaw), np.array([x, y, z])), True
-    single = smooth_trajectory(times, poses, valid, replace(SmoothingConfig(), reconverge_below_inlier_fraction=0.0))
+    paper = replace(SmoothingConfig(), gross_yaw_deviation=None)
+    single = smooth_trajectory(times, poses, valid, replace(paper, reconverge_below_inlier_fraction=0.0))
     assert single.inliers.sum() == 1 and np.all(np.abs(single.speeds) < 0.5)  # the paper's pass alone: stuck
-    result = smooth_trajectory(times, poses, valid)
+    result = smooth_trajectory(times, poses, valid, paper)
     assert np.flatnonzero(result.inliers).tolist() == [13, 14, 15, 16, 17, 18]
     assert np.all(np.abs(result.speeds[13:19]) > 4.0)
     assert result.span == (pytest.approx(times[13]), pytest.approx(times[18]))
+
+
+def test_gross_yaw_outliers_are_found_by_their_neighbours() -> None:
+    from idsplat_ns.data.geometry import make_pose, rot_z
+    from idsplat_ns.instances.smoothing.smoother import gross_yaw_outliers
+
+    yaws = np.linspace(0.0, math.pi / 2, 12)  # a quarter turn in 12 measurements
+    yaws[4] += math.pi  # a half-turned registration
+    yaws[9] -= 2.0
+    poses = np.stack([make_pose(rot_z(y), np.zeros(3)) for y in yaws])
+    valid = np.ones(12, bool)
+    valid[7] = False
+    found = gross_yaw_outliers(poses, valid, math.pi / 2)
+    assert np.flatnonzero(found).tolist() == [4, 9]
+    # across the +-pi seam: no false alarm
+    seam = np.stack([make_pose(rot_z(math.pi - 0.1 + 0.05 * k), np.zeros(3)) for k in range(6)])
+    assert not gross_yaw_outliers(seam, np.ones(6, bool), math.pi / 2).any()
+
+
+def test_turn_with_half_turned_registrations_is_followed() -> None:
+    """Recorded case (synthetic street, small preset, seed 1, the turning pickup after flip
+    correction): 17 registrations through a 90-degree turn, two of them half-turned (steps 10 and
+    12). With the Huber first pass alone the CT states loop through them and the turn is lost;
+    excluding gross yaw outliers first, the smoothed path stays on the measurements."""
+    from dataclasses import replace
+
+    from idsplat_ns.data.geometry import make_pose, rot_z
+
+    times = np.array([0.007, 0.107, 0.307, 0.507, 0.807, 1.007, 1.207, 1.407, 1.607, 1.807, 2.107, 2.307,
+                      2.507, 2.707, 2.907, 3.107, 3.407, 3.607, 3.807, 3.907])
+    rows = [[0, 31.714, 33.122, -0.811, 1.547], [1, 31.755, 33.083, -0.793, 1.568], [2, 31.98, 32.47, -0.951, 1.589],
+            [3, 32.252, 31.748, -0.915, 1.591], [4, 32.841, 30.183, -0.736, 1.561], [5, 33.127, 29.434, -0.749, 1.56],
+            [6, 33.17, 28.841, -0.686, 1.405], [7, 33.136, 28.13, -0.72, 1.237], [8, 32.993, 27.43, -0.735, 1.059],
+            [9, 32.793, 27.009, -0.826, 0.873], [10, 34.237, 24.232, -0.809, -1.018], [12, 31.665, 23.932, -0.635, 2.672],
+            [13, 31.801, 23.162, -0.991, 0.135], [14, 30.878, 22.617, -1.025, -0.024], [15, 29.918, 22.297, -1.026, 0.0],
+            [16, 28.5, 21.754, -1.037, 0.001], [17, 27.575, 21.395, -1.043, 0.0]]
+    poses = np.tile(np.eye(4), (len(times), 1, 1))
+    valid = np.zeros(len(times), bool)
+    for k, x, y, z, yaw in rows:
+        poses[int(k)], valid[int(k)] = make_pose(rot_z(yaw), np.array([x, y, z])), True
+    good = valid.copy()
+    good[[10, 12]] = False
+    result = smooth_trajectory(times, poses, valid)
+    assert not result.inliers[[10, 12]].any()
+    gap = np.linalg.norm(result.poses[good, :2, 3] - poses[good, :2, 3], axis=1)
+    assert gap.max() < 0.6  # measured 0.31 m (step 9)
+    assert result.span == (pytest.approx(times[0]), pytest.approx(times[17]))
+    huber_only = smooth_trajectory(times, poses, valid, replace(SmoothingConfig(), gross_yaw_deviation=None))
+    gap_huber = np.linalg.norm(huber_only.poses[good, :2, 3] - poses[good, :2, 3], axis=1)
+    assert gap_huber.max() > 3.0  # measured 9.6 m: the turn is lost

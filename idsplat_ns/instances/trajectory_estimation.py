@@ -47,6 +47,9 @@ class TrajectoryConfig:
     paper's single pass."""
     chain_max_gap: float = 1.0
     """Seconds: neighbours further away in time are not used by the chained registration."""
+    chain_max_deviation: float = 1.0
+    """Metres: a chained registration is accepted only this close to the constant-velocity
+    prediction from the two nearest registered frames."""
     heading_flips: HeadingFlipConfig = field(default_factory=HeadingFlipConfig)
     """Front/back flips of registrations, found from the direction of travel and turned back
     (ours; see instances/heading_flips.py)."""
@@ -133,19 +136,33 @@ def estimate_instance_track(
     )
 
 
+def predicted_pose(
+    poses: np.ndarray,  # [F, 4, 4] canonical -> world
+    registered: list[int],  # frames with a pose
+    times: np.ndarray,  # [F] seconds
+    frame: int,
+) -> np.ndarray:
+    """Constant-velocity prediction of the pose at ``frame`` from the two registered frames
+    nearest to it in time (the nearest one's rotation; zero velocity with a single frame)."""
+    order = sorted(registered, key=lambda f: (abs(times[f] - times[frame]), f))
+    out = poses[order[0]].copy()
+    if len(order) >= 2 and times[order[1]] != times[order[0]]:
+        a, b = order[0], order[1]
+        velocity = (poses[a, :3, 3] - poses[b, :3, 3]) / (times[a] - times[b])
+        out[:3, 3] += velocity * (times[frame] - times[a])
+    return out
+
+
 def motion_prior_pose(
-    neighbour_pose: np.ndarray,  # [4, 4] canonical -> world at a nearby time
+    prediction: np.ndarray,  # [4, 4] canonical -> world predicted for the frame
     source: np.ndarray,  # [N, 3] canonical points
     target: np.ndarray,  # [M, 3] world points at the frame to register
     config: RegistrationConfig,
-    radii: tuple[float, ...] = (1.0, 0.5),
+    radii: tuple[float, ...] = (0.5,),
 ) -> np.ndarray:
-    """Pose from a motion prior: the neighbour's rotation, the translation that puts the source's
-    centroid on the target's, then point-to-plane ICP with shrinking pair distances."""
-    R = neighbour_pose[:3, :3]
-    T = np.eye(4)
-    T[:3, :3] = R
-    T[:3, 3] = target.mean(0) - R @ source.mean(0)
+    """The prediction refined by point-to-plane ICP with shrinking pair distances (small ones:
+    a wide radius lets a box slide along its own flat faces)."""
+    T = prediction.copy()
     for radius in radii + (config.icp_distance,):
         T = icp_point_to_plane(T, source, target, max(config.icp_iterations, 10), radius)
     return T
@@ -184,14 +201,17 @@ def _register_chain(
             source = np.concatenate([canon_pts[k] for k in near])
             result = register(source, np.concatenate([canon_feat[k] for k in near]), o.points, features_of(o),
                               config.registration)
-            transform, fit = result.transform, result.fitness if result.success else 0.0
-            # Feature matches of a far car are weak: also start from the nearest neighbour's pose.
-            prior = motion_prior_pose(poses[canon_frames[near[0]]], source, o.points, config.registration)
+            # Feature matches of a far car are weak: also start from the motion's prediction, and
+            # accept only poses near it (a box registered to part of itself can slide metres).
+            prediction = predicted_pose(poses, canon_frames, times, o.frame)
+            prior = motion_prior_pose(prediction, source, o.points, config.registration)
             prior_fit = registration_fitness(prior, source, o.points, config.registration.inlier_distance)
-            if prior_fit > fit:
-                transform, fit = prior, prior_fit
             fitness[o.frame] = max(fitness[o.frame], result.fitness, prior_fit)
-            if fit >= config.registration.fitness_threshold:
+            transform, fit = None, 0.0
+            for candidate, score in ((result.transform, result.fitness if result.success else 0.0), (prior, prior_fit)):
+                if score > fit and np.linalg.norm(candidate[:3, 3] - prediction[:3, 3]) <= config.chain_max_deviation:
+                    transform, fit = candidate, score
+            if transform is not None and fit >= config.registration.fitness_threshold:
                 accept(o, transform)
                 succeeded = True
                 break  # the neighbourhoods changed: recompute them
