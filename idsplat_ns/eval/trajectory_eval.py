@@ -62,7 +62,10 @@ def _observed(scene: Scene, track: ObjectTrack, k: int, frame: int, config: Obse
         sensor = sweeps[0].sensor_to_world[:3, 3]
         if np.linalg.norm(pose[:3, 3] - sensor) > config.max_range:
             return False
-        if config.min_lidar_points > 0:
+        if config.min_lidar_points > 0 and track.num_lidar_points is not None:  # the dataset's own count
+            if track.num_lidar_points[k] < config.min_lidar_points:
+                return False
+        elif config.min_lidar_points > 0:
             sweep = sweeps[0]
             near = sweep.ranges[sweep.returned] <= config.max_range
             if points_in_box(sweep.points[near], pose, size).sum() < config.min_lidar_points:

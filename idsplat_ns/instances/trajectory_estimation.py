@@ -5,6 +5,11 @@ with the most points, with identity rotation. The other frames, in decreasing or
 are registered against the growing canonical point set; a success gives that frame's pose and adds
 its points (mapped back to the canonical frame) to the set. The ``centroid`` method is the paper's
 ablation (c): translation only, from the points' centroids.
+
+Ours, each with a switch in :class:`TrajectoryConfig` (docs/instances.md has the measurements):
+frames that fail are registered again against their nearest registered neighbours, gated by a
+constant-velocity prediction; half-turned registrations are turned back (heading_flips.py); and
+observations no registration reached become an instance of their own.
 """
 
 from __future__ import annotations

@@ -14,7 +14,7 @@ from idsplat_ns.instances.modes import InstanceMode, instance_tracks_for_mode
 from idsplat_ns.instances.runner import PreprocessConfig
 from idsplat_ns.nerfstudio.builtin_scene import cache_root
 from idsplat_ns.nerfstudio.dataparser import IDSplatDataParserConfig, PandaSetDataParserConfig
-from idsplat_ns.nerfstudio.dataset import IDSplatDataset
+from idsplat_ns.nerfstudio.dataset import IDSplatDataset, frames_of_split
 
 
 @dataclass
@@ -49,7 +49,7 @@ class IDSplatDataManager(FullImageDatamanager[IDSplatDataset]):
         # ("test"/"inference") load a checkpoint instead (stage caches make the tracks cheap then).
         meta["test_mode"] = test_mode
         scene = meta["scene"]
-        train_frames = {im.frame_index for im in meta["split_images"]}
+        train_frames = frames_of_split(meta)
         meta["instance_mode"] = config.instance_mode
         meta["instance_tracks"] = instance_tracks_for_mode(
             scene, config.instance_mode, train_frames, config.preprocess, cache_root() / "instances" / scene.name

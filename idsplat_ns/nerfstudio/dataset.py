@@ -13,6 +13,11 @@ from idsplat_ns.data.dynamic_masks import dynamic_mask
 from idsplat_ns.data.images import load_rgb
 
 
+def frames_of_split(metadata: dict) -> set[int]:
+    """Dataset frame indices of the images in a split (the dataparser's ``split_images``)."""
+    return {int(im.frame_index) for im in metadata["split_images"]}
+
+
 class IDSplatDataset(InputDataset):
     """Images of one split of a Scene, at the dataparser's scale."""
 

@@ -31,6 +31,7 @@ from idsplat_ns.model.mcmc import MCMCConfig, MCMCDensifier, mcmc_regularisation
 from idsplat_ns.model.scene_model import DecoderConfig, SceneModel
 from idsplat_ns.model.schedules import resolution_downscale
 from idsplat_ns.nerfstudio.dataparser import OPENCV_TO_OPENGL
+from idsplat_ns.nerfstudio.dataset import frames_of_split
 
 CONSOLE = Console()
 GAUSSIAN_GROUPS = GaussianSet.PARAM_NAMES
@@ -99,7 +100,7 @@ class IDSplatModel(Model):
             # ns-eval / ns-viewer: a checkpoint is loaded next (load_state_dict resizes), so the
             # initialisation (a KNN over millions of points at paper settings) would be wasted.
             gaussians = GaussianSet(0, self.config.decoder.feature_dim)
-        train_frames = {im.frame_index for im in metadata["split_images"]}
+        train_frames = frames_of_split(metadata)
         lidar_sweeps = sweeps_of_frames(scene, train_frames) if self.config.lidar.enabled else []
         self.scene_model = SceneModel(
             gaussians, len(self.camera_names), self.config.decoder, trajectories, self.config.background_color,

@@ -16,6 +16,8 @@ from PIL import Image
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+from idsplat_ns.nerfstudio.dataset import frames_of_split
+
 CONSOLE = Console()
 LPIPS_NOTE = (
     "LPIPS not computed: no backbone weights given (nothing is downloaded); pass "
@@ -53,7 +55,7 @@ class IDSplatPipeline(VanillaPipeline):
             return []
         from idsplat_ns.model.lidar_supervision import sweeps_of_frames
 
-        frames = {im.frame_index for im in self.datamanager.eval_dataset.metadata["split_images"]}
+        frames = frames_of_split(self.datamanager.eval_dataset.metadata)
         return sweeps_of_frames(self.datamanager.scene, frames)
 
     def _lidar_metrics(self, progress: Progress) -> dict:
