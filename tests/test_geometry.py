@@ -45,3 +45,21 @@ def test_slerp_matches_scipy_and_interpolate_poses():
     np.testing.assert_allclose(mid[0, :3, 3], [2.5, 0, 0])
     np.testing.assert_allclose(mid[1], poses[0], atol=1e-12)  # clamped before the span
     np.testing.assert_allclose(mid[2], poses[1], atol=1e-12)  # clamped after it
+
+
+def test_wrap_angle_and_yaw_of():
+    from idsplat_ns.data.geometry import wrap_angle, yaw_of
+
+    angles = np.array([-7.0, -np.pi, -0.3, 0.0, np.pi - 1e-9, np.pi, 4.0, 12.0])
+    wrapped = wrap_angle(angles)
+    assert np.all((wrapped >= -np.pi) & (wrapped < np.pi))
+    np.testing.assert_allclose(np.sin(wrapped), np.sin(angles), atol=1e-12)
+    np.testing.assert_allclose(np.cos(wrapped), np.cos(angles), atol=1e-12)
+    # heading of the x axis, against scipy's intrinsic Z-Y-X Euler angles (yaw, pitch, roll)
+    rng = np.random.default_rng(0)
+    euler = np.c_[rng.uniform(-np.pi, np.pi, 20), rng.uniform(-0.5, 0.5, 20), rng.uniform(-0.5, 0.5, 20)]
+    R = Rotation.from_euler("ZYX", euler).as_matrix()
+    np.testing.assert_allclose(yaw_of(R), euler[:, 0], atol=1e-12)
+    T = np.tile(np.eye(4), (20, 1, 1))
+    T[:, :3, :3] = R
+    np.testing.assert_allclose(yaw_of(T), euler[:, 0], atol=1e-12)

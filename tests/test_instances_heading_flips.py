@@ -8,9 +8,9 @@ import math
 import numpy as np
 
 from _instances_fixtures import CAR_SIZE, box_surface
-from idsplat_ns.data.geometry import invert_pose, make_pose, rot_z, transform_points
+from idsplat_ns.data.geometry import invert_pose, make_pose, rot_z, transform_points, wrap_angle, yaw_of
 from idsplat_ns.instances.heading_flips import (
-    HeadingFlipConfig, detect_flips, flip_about, travel_directions, yaw_of,
+    HeadingFlipConfig, detect_flips, flip_about, travel_directions,
 )
 from idsplat_ns.instances.lifting import InstanceObservation
 from idsplat_ns.instances.trajectory_estimation import TrajectoryConfig, _correct_flips
@@ -73,7 +73,7 @@ def test_flip_about_turns_half_a_turn_about_the_centre():
     pose = make_pose(rot_z(0.4), np.array([5.0, -2.0, 1.0]))
     c = np.array([1.2, -0.4, 0.7])
     out = flip_about(pose, c)
-    assert math.isclose(abs(((yaw_of(out[None])[0] - 0.4) + np.pi) % (2 * np.pi) - np.pi), np.pi, abs_tol=1e-9)
+    assert math.isclose(abs(wrap_angle(yaw_of(out) - 0.4)), np.pi, abs_tol=1e-9)
     c_ground = np.array([c[0], c[1], 0.0])
     np.testing.assert_allclose(transform_points(out, c_ground[None]), transform_points(pose, c_ground[None]), atol=1e-12)
     np.testing.assert_allclose(flip_about(out, c), pose, atol=1e-12)  # twice is the identity
@@ -101,7 +101,7 @@ def test_correct_flips_restores_poses_and_remaps_canonical_points():
     _correct_flips(registered, valid, fitness, counts, canon_pts, cols, canon_frames, observations, t, TrajectoryConfig())
     for k in range(12):
         np.testing.assert_allclose(registered[k][:3, 3], poses[k][:3, 3], atol=0.05)
-        assert abs(((yaw_of(registered[k][None])[0] - yaw_of(poses[k][None])[0]) + np.pi) % (2 * np.pi) - np.pi) < 0.02
+        assert abs(wrap_angle(yaw_of(registered[k]) - yaw_of(poses[k]))) < 0.02
         np.testing.assert_allclose(canon_pts[k], body, atol=0.06)
     assert np.all(fitness[flipped] > 0.9)
 

@@ -91,6 +91,16 @@ def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
     return np.asarray(points, dtype=np.float64) @ T[:3, :3].T + T[:3, 3]
 
 
+def wrap_angle(angle: np.ndarray | float) -> np.ndarray:
+    """Angles (rad) wrapped to [-pi, pi)."""
+    return (np.asarray(angle, dtype=np.float64) + np.pi) % (2 * np.pi) - np.pi
+
+
+def yaw_of(poses: np.ndarray) -> np.ndarray:  # [..., 4, 4] or [..., 3, 3] -> [...]
+    """Heading (rad) of the x axis about +z: ``atan2(R[1, 0], R[0, 0])``."""
+    return np.arctan2(poses[..., 1, 0], poses[..., 0, 0])
+
+
 def rot_z(yaw: np.ndarray | float) -> np.ndarray:
     """Rotations about +z by ``yaw`` radians, counter-clockwise: [..., 3, 3]."""
     yaw = np.asarray(yaw, dtype=np.float64)

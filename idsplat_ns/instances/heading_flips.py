@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from idsplat_ns.data.geometry import make_pose, rot_z
+from idsplat_ns.data.geometry import make_pose, rot_z, wrap_angle, yaw_of
 
 
 @dataclass(frozen=True)
@@ -40,10 +40,6 @@ class HeadingFlipConfig:
     """A frame whose offset is at least this far from the common offset is flipped."""
     min_track_displacement: float = 1.0
     """Metres: instances that move less than this (the paper's static threshold) are left alone."""
-
-
-def _wrap(angle: np.ndarray) -> np.ndarray:
-    return (np.asarray(angle) + np.pi) % (2 * np.pi) - np.pi
 
 
 def travel_directions(
@@ -72,10 +68,6 @@ def travel_directions(
     return out
 
 
-def yaw_of(poses: np.ndarray) -> np.ndarray:  # [T, 4, 4] -> [T]
-    return np.arctan2(poses[:, 1, 0], poses[:, 0, 0])
-
-
 def detect_flips(
     times: np.ndarray,  # [T] seconds
     poses: np.ndarray,  # [T, 4, 4] canonical -> world
@@ -94,11 +86,11 @@ def detect_flips(
     flipped = np.zeros(len(times), bool)
     if has.sum() < 2:
         return flipped
-    offset = _wrap(direction[has] - yaw_of(poses[has]))
+    offset = wrap_angle(direction[has] - yaw_of(poses[has]))
     w = np.asarray(weights, np.float64)[has]
-    support = [(w * (np.abs(_wrap(offset - o)) <= config.agree_angle)).sum() for o in offset]
+    support = [(w * (np.abs(wrap_angle(offset - o)) <= config.agree_angle)).sum() for o in offset]
     common = offset[int(np.argmax(support))]
-    flipped[np.flatnonzero(has)] = np.abs(_wrap(offset - common)) >= config.flip_angle
+    flipped[np.flatnonzero(has)] = np.abs(wrap_angle(offset - common)) >= config.flip_angle
     return flipped
 
 

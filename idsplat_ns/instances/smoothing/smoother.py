@@ -15,7 +15,7 @@ import numpy as np
 
 from idsplat_ns.instances.smoothing import factors as F
 from idsplat_ns.instances.smoothing.config import SmoothingConfig
-from idsplat_ns.data.geometry import invert_pose, rot_z
+from idsplat_ns.data.geometry import invert_pose, rot_z, wrap_angle, yaw_of
 from idsplat_ns.instances.smoothing.ct_model import ct_delta_pose, shared_rotation_pose
 
 # Half-width (in measurements) of the running median used for the initial guess.
@@ -100,10 +100,6 @@ def _running_median(values: np.ndarray, half_width: int) -> np.ndarray:  # value
     return out
 
 
-def _yaw(rotation: np.ndarray) -> float:  # rotation: [3, 3]
-    return math.atan2(rotation[1, 0], rotation[0, 0])
-
-
 @dataclass
 class _InitialGuess:
     poses: np.ndarray  # [T, 4, 4]
@@ -121,14 +117,14 @@ def gross_yaw_outliers(
     """[T] bool: valid measurements whose yaw is more than ``max_deviation`` (rad) from the
     circular mean of up to ``neighbours`` valid measurements on each side (itself left out)."""
     idx = np.flatnonzero(valid)
-    yaw = np.array([_yaw(poses[i, :3, :3]) for i in idx])
+    yaw = yaw_of(poses[idx])
     out = np.zeros(len(poses), bool)
     for j, i in enumerate(idx):
         near = np.r_[yaw[max(0, j - neighbours) : j], yaw[j + 1 : j + 1 + neighbours]]
         if len(near) == 0:
             continue
         ref = math.atan2(float(np.sin(near).sum()), float(np.cos(near).sum()))
-        out[i] = abs((yaw[j] - ref + math.pi) % (2 * math.pi) - math.pi) > max_deviation
+        out[i] = abs(wrap_angle(yaw[j] - ref)) > max_deviation
     return out
 
 
@@ -138,7 +134,7 @@ def _initial_guess(times: np.ndarray, poses: np.ndarray, valid: np.ndarray) -> _
     idx = np.flatnonzero(valid)
     t_meas = times[idx]
     pos = _running_median(poses[idx, :3, 3], _INIT_MEDIAN_HALF_WIDTH)
-    yaws = np.unwrap(np.array([_yaw(poses[i, :3, :3]) for i in idx]))
+    yaws = np.unwrap(yaw_of(poses[idx]))
     yaws = _running_median(yaws, _INIT_MEDIAN_HALF_WIDTH)
     T = len(times)
     positions = np.stack([np.interp(times, t_meas, pos[:, a]) for a in range(3)], axis=1)
