@@ -35,15 +35,34 @@ class ObservedFilter:
     """Metres: predictions within an uncounted object's box grown by this are ignored."""
 
 
-def _in_some_image(scene: Scene, frame: int, pose: np.ndarray, size: np.ndarray) -> bool:
+class _FrameIndex:
+    """A scene's images and lidar sweep per frame, and each sweep's points within range, built
+    once for all the (track, frame) pairs the observed filter checks."""
+
+    def __init__(self, scene: Scene, max_range: float) -> None:
+        self.images: dict[int, list] = {}
+        for image in scene.images:
+            self.images.setdefault(int(image.frame_index), []).append(image)
+        self.sweeps: dict[int, object] = {}
+        for sweep in scene.lidar:
+            self.sweeps.setdefault(int(sweep.frame_index), sweep)
+        self.max_range = max_range
+        self._near_points: dict[int, np.ndarray] = {}
+
+    def points_in_range(self, frame: int) -> np.ndarray:  # -> [M, 3] returned points within max_range
+        if frame not in self._near_points:
+            sweep = self.sweeps[frame]
+            self._near_points[frame] = sweep.points[sweep.ranges[sweep.returned] <= self.max_range]
+        return self._near_points[frame]
+
+
+def _in_some_image(index: _FrameIndex, frame: int, pose: np.ndarray, size: np.ndarray) -> bool:
     """Whether the box's silhouette overlaps any image of ``frame`` (occlusion not modelled)."""
     import cv2
 
     from idsplat_ns.data.dynamic_masks import box_silhouette
 
-    for image in scene.images:
-        if image.frame_index != frame:
-            continue
+    for image in index.images.get(frame, []):
         poly = box_silhouette(image, pose, size)
         if poly is None or len(poly) < 3:
             continue
@@ -55,22 +74,19 @@ def _in_some_image(scene: Scene, frame: int, pose: np.ndarray, size: np.ndarray)
     return False
 
 
-def _observed(scene: Scene, track: ObjectTrack, k: int, frame: int, config: ObservedFilter) -> bool:
+def _observed(index: _FrameIndex, track: ObjectTrack, k: int, frame: int, config: ObservedFilter) -> bool:
     pose, size = track.poses[k], track.size
-    sweeps = [s for s in scene.lidar if int(s.frame_index) == frame]
-    if sweeps:
-        sensor = sweeps[0].sensor_to_world[:3, 3]
-        if np.linalg.norm(pose[:3, 3] - sensor) > config.max_range:
+    sweep = index.sweeps.get(frame)
+    if sweep is not None:
+        if np.linalg.norm(pose[:3, 3] - sweep.sensor_to_world[:3, 3]) > config.max_range:
             return False
         if config.min_lidar_points > 0 and track.num_lidar_points is not None:  # the dataset's own count
             if track.num_lidar_points[k] < config.min_lidar_points:
                 return False
         elif config.min_lidar_points > 0:
-            sweep = sweeps[0]
-            near = sweep.ranges[sweep.returned] <= config.max_range
-            if points_in_box(sweep.points[near], pose, size).sum() < config.min_lidar_points:
+            if points_in_box(index.points_in_range(frame), pose, size).sum() < config.min_lidar_points:
                 return False
-    return not config.require_camera or _in_some_image(scene, frame, pose, size)
+    return not config.require_camera or _in_some_image(index, frame, pose, size)
 
 
 def ground_truth_positions(
@@ -88,6 +104,7 @@ def _ground_truth(scene: Scene, groups: Sequence[str], moving_only: bool, observ
     """Counted positions ``{frame: {id: xyz}}`` and uncounted boxes ``{frame: [(pose, size)]}``."""
     frames: dict = {int(f): {} for f in scene.frame_indices}
     ignored: dict = {int(f): [] for f in scene.frame_indices}
+    index = _FrameIndex(scene, observed.max_range) if observed is not None else None
     for track in scene.tracks:
         if track.group not in groups or (moving_only and not track.moving):
             continue
@@ -95,7 +112,7 @@ def _ground_truth(scene: Scene, groups: Sequence[str], moving_only: bool, observ
             f = int(f)
             if f not in frames:
                 continue
-            if observed is None or _observed(scene, track, k, f, observed):
+            if observed is None or _observed(index, track, k, f, observed):
                 frames[f][track.track_id] = pose[:3, 3].copy()
             else:
                 ignored[f].append((pose, track.size))

@@ -6,7 +6,7 @@ Conventions (../shared/DESIGN.md): instance IDs start at 1 (0 is the static back
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Optional
 
@@ -49,8 +49,6 @@ class InstanceTrack:
     def keep_points_of_frames(self, frames: np.ndarray, min_points: int = 10) -> "InstanceTrack":
         """A copy whose canonical points come only from ``frames`` ([F] bool); unchanged when the
         origin frames are unknown or fewer than ``min_points`` would remain."""
-        from dataclasses import replace
-
         if self.point_frames is None:
             return self
         keep = np.asarray(frames, bool)[self.point_frames]

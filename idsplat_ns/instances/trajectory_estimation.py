@@ -106,6 +106,7 @@ def estimate_instance_track(
             valid[o.frame], fitness[o.frame] = True, 1.0
             canon_pts.append(o.points - centre - shift)
             canon_cols.append(colours_of(o))
+            canon_frames.append(o.frame)
     else:
         if features is None:
             raise ValueError("registration needs point features (pass the extractor's output, or use method='centroid')")
@@ -131,8 +132,6 @@ def estimate_instance_track(
             by_frame = {o.frame: o for o in observations}
             _correct_flips(poses, valid, fitness, counts, canon_pts, canon_cols, canon_frames, by_frame, times, config)
     colors = None if any(c is None for c in canon_cols) else np.concatenate(canon_cols)
-    if config.method == "centroid":
-        canon_frames = [ref.frame] + [o.frame for o in order[1:]]
     point_frames = np.concatenate([np.full(len(p), f, np.int32) for p, f in zip(canon_pts, canon_frames)])
     return InstanceTrack(
         instance_id=iid, label=label, canonical_points=np.concatenate(canon_pts), canonical_colors=colors,
