@@ -1,19 +1,20 @@
-"""Front/back flip detection from the direction of travel, the half turn that undoes a flip, and
-its use after registration (canonical points re-mapped)."""
+"""Heading errors found from the direction of travel (front/back flips, quarter turns), the turn
+that undoes them, and their correction after registration (canonical points re-mapped)."""
 
 from __future__ import annotations
 
 import math
 
 import numpy as np
+import pytest
 
 from _instances_fixtures import CAR_SIZE, box_surface
 from idsplat_ns.data.geometry import invert_pose, make_pose, rot_z, transform_points, wrap_angle, yaw_of
 from idsplat_ns.instances.heading_flips import (
-    HeadingFlipConfig, detect_flips, flip_about, travel_directions,
+    HeadingFlipConfig, heading_errors, travel_directions, turn_about,
 )
 from idsplat_ns.instances.lifting import InstanceObservation
-from idsplat_ns.instances.trajectory_estimation import TrajectoryConfig, _correct_flips
+from idsplat_ns.instances.trajectory_estimation import TrajectoryConfig, _correct_headings
 
 
 def _turning_track(num: int = 16, dt: float = 0.2, shared_yaw: float = 0.7):
@@ -31,11 +32,17 @@ def test_travel_directions_follow_the_motion():
     t, poses = _turning_track()
     valid = np.ones(len(t), bool)
     valid[5] = False
-    d = travel_directions(t, poses[:, :3, 3], valid, min_displacement=0.5, max_time_gap=2.0)
-    assert np.isnan(d[5])
     heading = 6.0 * t / 15.0
-    # the chord to the nearest measurement 0.5 m+ away lies within its half-angle of the tangent
-    assert np.all(np.abs((d[valid] - heading[valid] + np.pi) % (2 * np.pi) - np.pi) < 0.1)
+    # a chord k steps long (1.2 m, 0.08 rad of turn per step) lies k * 0.04 rad off the tangent
+    nearest = travel_directions(t, poses[:, :3, 3], valid, min_displacement=0.5, max_time_gap=2.0, neighbours=1)
+    assert np.isnan(nearest[5])
+    assert np.all(np.abs(wrap_angle(nearest[valid] - heading[valid])) < 0.1)
+    # the mean over 4 neighbours: chords on both sides cancel inside the track; one-sided at the
+    # ends it lies (1 + 2 + 3 + 4) / 4 * 0.04 = 0.1 rad off
+    d = travel_directions(t, poses[:, :3, 3], valid, min_displacement=0.5, max_time_gap=2.0)
+    err = np.abs(wrap_angle(d - heading))
+    assert np.isnan(d[5]) and np.all(err[valid] < 0.11)
+    assert np.all(err[[2, 8, 9, 10, 11]] < 1e-6)  # symmetric neighbourhoods (away from the gap at 5)
     # a parked car has no direction of travel
     still = np.tile(np.eye(4), (5, 1, 1))
     assert np.isnan(travel_directions(np.arange(5.0), still[:, :3, 3], np.ones(5, bool), 0.5, 2.0)).all()
@@ -48,14 +55,15 @@ def test_detect_flips_finds_exactly_the_flipped_measurements():
     truth[[0, 1, 2, 9]] = True
     flipped_poses = poses.copy()
     for k in np.flatnonzero(truth):
-        flipped_poses[k] = flip_about(poses[k], np.array([0.3, -0.2, 0.0]))
+        flipped_poses[k] = turn_about(poses[k], np.array([0.3, -0.2, 0.0]), np.pi)
     weights = np.full(len(t), 100.0)
-    found = detect_flips(t, flipped_poses, valid, weights, HeadingFlipConfig())
-    np.testing.assert_array_equal(found, truth)
+    found = heading_errors(t, flipped_poses, valid, weights, HeadingFlipConfig())
+    np.testing.assert_array_equal(np.isfinite(found), truth)
+    np.testing.assert_allclose(np.abs(found[truth]), np.pi)  # snapped to the half turn
     # no flips: nothing found; the common offset does not depend on the shared rotation
     for shared in (0.0, 2.5, -1.9):
         _, clean = _turning_track(shared_yaw=shared)
-        assert not detect_flips(t, clean, valid, weights, HeadingFlipConfig()).any()
+        assert np.isnan(heading_errors(t, clean, valid, weights, HeadingFlipConfig())).all()
 
 
 def test_weights_decide_which_half_is_flipped():
@@ -63,23 +71,50 @@ def test_weights_decide_which_half_is_flipped():
     valid = np.ones(10, bool)
     flipped_poses = poses.copy()
     for k in range(6):  # the majority is flipped, but carries few points
-        flipped_poses[k] = flip_about(poses[k], np.zeros(3))
+        flipped_poses[k] = turn_about(poses[k], np.zeros(3), np.pi)
     weights = np.array([10.0] * 6 + [500.0] * 4)
-    found = detect_flips(t, flipped_poses, valid, weights, HeadingFlipConfig())
-    np.testing.assert_array_equal(found, np.arange(10) < 6)
+    found = heading_errors(t, flipped_poses, valid, weights, HeadingFlipConfig())
+    np.testing.assert_array_equal(np.isfinite(found), np.arange(10) < 6)
 
 
-def test_flip_about_turns_half_a_turn_about_the_centre():
+@pytest.mark.parametrize("angle", [np.pi, np.pi / 2, -0.3])
+def test_turn_about_turns_about_the_centre(angle):
     pose = make_pose(rot_z(0.4), np.array([5.0, -2.0, 1.0]))
     c = np.array([1.2, -0.4, 0.7])
-    out = flip_about(pose, c)
-    assert math.isclose(abs(wrap_angle(yaw_of(out) - 0.4)), np.pi, abs_tol=1e-9)
+    out = turn_about(pose, c, angle)
+    assert math.isclose(wrap_angle(yaw_of(out) - 0.4 - angle), 0.0, abs_tol=1e-9)
     c_ground = np.array([c[0], c[1], 0.0])
     np.testing.assert_allclose(transform_points(out, c_ground[None]), transform_points(pose, c_ground[None]), atol=1e-12)
-    np.testing.assert_allclose(flip_about(out, c), pose, atol=1e-12)  # twice is the identity
+    np.testing.assert_allclose(turn_about(out, c, -angle), pose, atol=1e-12)  # undone by the opposite turn
 
 
-def test_correct_flips_restores_poses_and_remaps_canonical_points():
+def test_one_misplaced_measurement_does_not_reverse_its_neighbours():
+    """Recorded on the small street, seed 4: a car entering the view was registered 3.5 m ahead
+    of itself. With the direction towards the nearest neighbour alone, it and its (correct)
+    neighbour both seemed to drive backwards, so both were 'flipped' and then dropped."""
+    t, poses = _turning_track(num=10, shared_yaw=0.0)
+    poses[0, :3, 3] += 3.5 * np.array([1.0, 0.0, 0.0])  # ahead of frame 1
+    valid = np.ones(10, bool)
+    d_nearest = travel_directions(t, poses[:, :3, 3], valid, 0.5, 2.0, neighbours=1)
+    assert abs(wrap_angle(d_nearest[1])) > np.pi / 2  # the old rule: frame 1 drives backwards
+    assert np.isnan(heading_errors(t, poses, valid, np.full(10, 100.0), HeadingFlipConfig())).all()
+
+
+def test_quarter_turns_are_found_and_snapped():
+    t, poses = _turning_track(num=12)
+    registered = poses.copy()
+    for k in range(4):  # sparse early frames registered a quarter turn off (plus a little)
+        registered[k] = turn_about(poses[k], np.zeros(3), -np.pi / 2 + 0.15)
+    weights = np.array([20.0] * 4 + [300.0] * 8)
+    found = heading_errors(t, registered, np.ones(12, bool), weights, HeadingFlipConfig())
+    np.testing.assert_array_equal(np.isfinite(found), np.arange(12) < 4)
+    np.testing.assert_allclose(found[:4], np.pi / 2)
+    # without snapping the turn is the measured disagreement, which carries the chord's error
+    raw = heading_errors(t, registered, np.ones(12, bool), weights, HeadingFlipConfig(snap_angle=0.0))
+    assert np.all(np.abs(raw[:4] - (np.pi / 2 - 0.15)) < 0.11)  # the chord's error, above
+
+
+def test_correct_headings_restores_poses_and_remaps_canonical_points():
     rng = np.random.default_rng(0)
     t, poses = _turning_track(num=12, shared_yaw=0.0)
     body = box_surface(1500, CAR_SIZE, rng)
@@ -91,14 +126,14 @@ def test_correct_flips_restores_poses_and_remaps_canonical_points():
     registered = poses.copy()
     flipped = [1, 2, 7]
     for k in flipped:
-        registered[k] = flip_about(poses[k], np.zeros(3))
+        registered[k] = turn_about(poses[k], np.zeros(3), np.pi)
     valid = np.ones(12, bool)
     fitness = np.ones(12)
     counts = np.full(12, len(body))
     canon_frames = list(range(12))
     canon_pts = [transform_points(invert_pose(registered[k]), observations[k].points) for k in canon_frames]
     cols = [None] * 12
-    _correct_flips(registered, valid, fitness, counts, canon_pts, cols, canon_frames, observations, t, TrajectoryConfig())
+    _correct_headings(registered, valid, fitness, counts, canon_pts, cols, canon_frames, observations, t, TrajectoryConfig())
     for k in range(12):
         np.testing.assert_allclose(registered[k][:3, 3], poses[k][:3, 3], atol=0.05)
         assert abs(wrap_angle(yaw_of(registered[k]) - yaw_of(poses[k]))) < 0.02
@@ -106,11 +141,11 @@ def test_correct_flips_restores_poses_and_remaps_canonical_points():
     assert np.all(fitness[flipped] > 0.9)
 
 
-def test_correct_flips_leaves_a_parked_car_alone():
+def test_correct_headings_leaves_a_parked_car_alone():
     t = np.arange(8) * 0.2
     poses = np.tile(make_pose(rot_z(0.3), np.array([4.0, 2.0, 0.0])), (8, 1, 1))
-    poses[3] = flip_about(poses[3], np.zeros(3))
+    poses[3] = turn_about(poses[3], np.zeros(3), np.pi)
     before = poses.copy()
     pts = [np.zeros((5, 3)) for _ in range(8)]
-    _correct_flips(poses, np.ones(8, bool), np.ones(8), np.full(8, 50), pts, [None] * 8, list(range(8)), {}, t, TrajectoryConfig())
+    _correct_headings(poses, np.ones(8, bool), np.ones(8), np.full(8, 50), pts, [None] * 8, list(range(8)), {}, t, TrajectoryConfig())
     np.testing.assert_array_equal(poses, before)

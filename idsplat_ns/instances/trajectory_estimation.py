@@ -23,7 +23,7 @@ from tqdm import tqdm
 from idsplat_ns.data.geometry import invert_pose, transform_points
 from idsplat_ns.data.scene import Scene
 from idsplat_ns.instances.features.base import PointFeatures
-from idsplat_ns.instances.heading_flips import HeadingFlipConfig, canonical_box_centre, detect_flips, flip_about
+from idsplat_ns.instances.heading_flips import HeadingFlipConfig, canonical_box_centre, heading_errors, turn_about
 from idsplat_ns.instances.lifting import InstanceObservation, LiftedInstances
 from idsplat_ns.instances.registration import RegistrationConfig, icp_point_to_plane, register, registration_fitness
 from idsplat_ns.instances.tracks import InstanceTrack, InstanceTracks, fill_invalid_poses
@@ -56,8 +56,8 @@ class TrajectoryConfig:
     """Metres: a chained registration is accepted only this close to the constant-velocity
     prediction from the two nearest registered frames."""
     heading_flips: HeadingFlipConfig = field(default_factory=HeadingFlipConfig)
-    """Front/back flips of registrations, found from the direction of travel and turned back
-    (ours; see instances/heading_flips.py)."""
+    """Registrations whose heading disagrees with the direction of travel (front/back flips,
+    quarter turns), turned back (ours; see instances/heading_flips.py)."""
 
 
 def _obs_features(features: PointFeatures, iid: int, obs: InstanceObservation) -> np.ndarray:
@@ -74,7 +74,7 @@ def estimate_instance_track(
     features: Optional[PointFeatures],
     num_frames: int,
     config: TrajectoryConfig,
-    times: Optional[np.ndarray] = None,  # [F] seconds; needed for heading-flip correction
+    times: Optional[np.ndarray] = None,  # [F] seconds; needed for heading correction
     source_id: Optional[int] = None,
 ) -> InstanceTrack:
     """Poses of one instance at every frame where registration succeeds. ``source_id`` is the mask
@@ -130,7 +130,7 @@ def estimate_instance_track(
                             lambda o: _obs_features(features, fid, o), accept)
         if config.heading_flips.enabled and times is not None:
             by_frame = {o.frame: o for o in observations}
-            _correct_flips(poses, valid, fitness, counts, canon_pts, canon_cols, canon_frames, by_frame, times, config)
+            _correct_headings(poses, valid, fitness, counts, canon_pts, canon_cols, canon_frames, by_frame, times, config)
     colors = None if any(c is None for c in canon_cols) else np.concatenate(canon_cols)
     point_frames = np.concatenate([np.full(len(p), f, np.int32) for p, f in zip(canon_pts, canon_frames)])
     return InstanceTrack(
@@ -223,7 +223,7 @@ def _register_chain(
             return
 
 
-def _correct_flips(
+def _correct_headings(
     poses: np.ndarray,  # [F, 4, 4] (updated in place)
     valid: np.ndarray,  # [F] bool
     fitness: np.ndarray,  # [F] (updated in place)
@@ -235,26 +235,27 @@ def _correct_flips(
     times: np.ndarray,  # [F] seconds
     config: TrajectoryConfig,
 ) -> None:
-    """Turn back front/back-flipped registrations (see heading_flips.py): half a turn about the box
-    centre of the unflipped canonical points, refined by ICP on them, and re-map those frames'
-    canonical points. A frame whose turned pose does not reach the fitness threshold either is
-    dropped (it disagrees with the motion both ways)."""
+    """Turn back registrations whose heading disagrees with the motion (see heading_flips.py): by
+    the disagreement about the box centre of the agreeing canonical points, refined by ICP on them,
+    and re-map those frames' canonical points. A frame whose turned pose does not reach the fitness
+    threshold either is dropped (it disagrees with the motion both ways)."""
     flips = config.heading_flips
     t = poses[valid, :3, 3]
     if len(t) < 2 or np.max(np.linalg.norm(t[:, None] - t[None], axis=-1)) < flips.min_track_displacement:
         return
-    flipped = detect_flips(times, poses, valid, counts, flips)
-    if not flipped.any():
+    error = heading_errors(times, poses, valid, counts, flips)
+    wrong = np.isfinite(error)
+    if not wrong.any():
         return
-    keep = [k for k, f in enumerate(canon_frames) if not flipped[f]]
+    keep = [k for k, f in enumerate(canon_frames) if not wrong[f]]
     reference = np.concatenate([canon_pts[k] for k in keep])
     centre = canonical_box_centre(reference)
     reg = config.registration
     for k, f in enumerate(canon_frames):
-        if not flipped[f]:
+        if not wrong[f]:
             continue
         target = by_frame[f].points
-        turned = flip_about(poses[f], centre)
+        turned = turn_about(poses[f], centre, float(error[f]))
         refined = icp_point_to_plane(turned, reference, target, reg.icp_iterations, reg.icp_distance)
         fit = registration_fitness(refined, reference, target, reg.inlier_distance)
         if fit >= reg.fitness_threshold:
