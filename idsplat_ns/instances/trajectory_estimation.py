@@ -176,7 +176,8 @@ def motion_outliers(
 ) -> list[int]:
     """Frames whose position is further than ``max_deviation`` (metres) from the constant-velocity
     prediction of their two nearest other registered frames, found worst first and one at a time
-    (a misplaced frame also spoils the prediction of its neighbours)."""
+    (a misplaced frame also spoils the prediction of its neighbours). Needs 4 registered frames:
+    with 3, each prediction leans on the misplaced one and any of them could be it."""
     kept = list(registered)
     out = []
     while len(kept) >= 4:
