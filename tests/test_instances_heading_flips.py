@@ -34,21 +34,23 @@ def test_travel_directions_follow_the_motion():
     valid[5] = False
     heading = 6.0 * t / 15.0
     # a chord k steps long (1.2 m, 0.08 rad of turn per step) lies k * 0.04 rad off the tangent
-    nearest = travel_directions(t, poses[:, :3, 3], valid, min_displacement=0.5, max_time_gap=2.0, neighbours=1)
+    nearest = travel_directions(t, poses[:, :3, 3], valid, min_displacement=0.5, max_time_gap=2.0, neighbours=1,
+                                min_agreement=0.5)
     assert np.isnan(nearest[5])
     assert np.all(np.abs(wrap_angle(nearest[valid] - heading[valid])) < 0.1)
     # the mean over 4 neighbours: chords on both sides cancel inside the track; one-sided at the
     # ends it lies (1 + 2 + 3 + 4) / 4 * 0.04 = 0.1 rad off
-    d = travel_directions(t, poses[:, :3, 3], valid, min_displacement=0.5, max_time_gap=2.0)
+    d = travel_directions(t, poses[:, :3, 3], valid, min_displacement=0.5, max_time_gap=2.0, neighbours=4,
+                          min_agreement=0.5)
     err = np.abs(wrap_angle(d - heading))
     assert np.isnan(d[5]) and np.all(err[valid] < 0.11)
     assert np.all(err[[2, 8, 9, 10, 11]] < 1e-6)  # symmetric neighbourhoods (away from the gap at 5)
     # a parked car has no direction of travel
     still = np.tile(np.eye(4), (5, 1, 1))
-    assert np.isnan(travel_directions(np.arange(5.0), still[:, :3, 3], np.ones(5, bool), 0.5, 2.0)).all()
+    assert np.isnan(travel_directions(np.arange(5.0), still[:, :3, 3], np.ones(5, bool), 0.5, 2.0, 4, 0.5)).all()
 
 
-def test_detect_flips_finds_exactly_the_flipped_measurements():
+def test_heading_errors_find_exactly_the_flipped_measurements():
     t, poses = _turning_track()
     valid = np.ones(len(t), bool)
     truth = np.zeros(len(t), bool)
@@ -95,7 +97,7 @@ def test_one_misplaced_measurement_does_not_reverse_its_neighbours():
     t, poses = _turning_track(num=10, shared_yaw=0.0)
     poses[0, :3, 3] += 3.5 * np.array([1.0, 0.0, 0.0])  # ahead of frame 1
     valid = np.ones(10, bool)
-    d_nearest = travel_directions(t, poses[:, :3, 3], valid, 0.5, 2.0, neighbours=1)
+    d_nearest = travel_directions(t, poses[:, :3, 3], valid, 0.5, 2.0, neighbours=1, min_agreement=0.5)
     assert abs(wrap_angle(d_nearest[1])) > np.pi / 2  # the old rule: frame 1 drives backwards
     assert np.isnan(heading_errors(t, poses, valid, np.full(10, 100.0), HeadingFlipConfig())).all()
 

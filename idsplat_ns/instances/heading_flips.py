@@ -66,8 +66,8 @@ def travel_directions(
     valid: np.ndarray,  # [T] bool
     min_displacement: float,
     max_time_gap: float,
-    neighbours: int = 4,
-    min_agreement: float = 0.5,
+    neighbours: int,
+    min_agreement: float,
 ) -> np.ndarray:
     """[T] world angle (rad) of the direction of travel at each valid frame, NaN where none: the
     mean unit direction (earlier to later) between the frame and its ``neighbours``
