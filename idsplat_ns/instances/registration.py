@@ -166,7 +166,9 @@ def icp_point_to_plane(
 ) -> np.ndarray:
     """Point-to-plane ICP (small-angle linearisation): each target point is paired with its nearest
     transformed source point within ``max_distance`` and the distance along the source normal is
-    minimised."""
+    minimised. The small rotation is about the paired points' centroid, not the world origin: about
+    an origin 30 m away, the minimum-norm step of a flat (degenerate) patch is a rotation with a
+    30 m lever, which slid a car 12 m and turned it 48 deg in a few iterations."""
     if len(source_xyz) < 6 or len(target_xyz) < 6:
         return transform
     normals = estimate_normals(source_xyz)
@@ -179,12 +181,14 @@ def icp_point_to_plane(
         if ok.sum() < 6:
             break
         p, q, n = src[idx[ok]], target_xyz[ok], nrm[idx[ok]]
-        # residual n.(q - (p + w x p + v)) with a small rotation w and translation v
-        A = np.concatenate([np.cross(p, n), n], 1)
+        c = q.mean(0)
+        # residual n.(q - (p + w x (p - c) + v)) with a small rotation w about c and translation v
+        A = np.concatenate([np.cross(p - c, n), n], 1)
         b = np.sum(n * (q - p), 1)
         x, *_ = np.linalg.lstsq(A, b, rcond=None)
         w, v = x[:3], x[3:]
-        step = make_pose(so3_exp(w), v)
+        R_step = so3_exp(w)
+        step = make_pose(R_step, c + v - R_step @ c)
         T = step @ T
         if np.linalg.norm(x) < 1e-6:
             break
