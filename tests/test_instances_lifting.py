@@ -92,6 +92,11 @@ def test_lifting_keeps_object_points_and_filters_background(scene, oracle_masks)
     assert np.all(_fraction_in_box(scene, lifted, 2, 1) > 0.99)
     o = lifted.observations[1][0]
     assert len(o.points) > 200 and o.uv.shape == (len(o.points), 2)
+    # each point carries its own ray's time (the sweep's time of that very point)
+    sweep = next(s for s in scene.lidar if s.frame_index == scene.frame_indices[o.frame])
+    ray_time = dict(zip(map(tuple, sweep.points), sweep.times[sweep.returned]))
+    assert o.times.shape == (len(o.points),)
+    np.testing.assert_array_equal(o.times, [ray_time[tuple(p)] for p in o.points])
     # no erosion and no DBSCAN: the box silhouette also catches ground and wall points
     raw = lift_instances(scene, oracle_masks, LiftingConfig(erosion_px=0, use_dbscan=False), progress=False)
     assert np.mean(_fraction_in_box(scene, raw, 1, 0)) < np.mean(_fraction_in_box(scene, lifted, 1, 0)) - 0.02
@@ -162,6 +167,9 @@ def test_registration_trajectories_and_static_conversion(scene, oracle_masks, tm
     c = moving.canonical_frame
     assert moving.point_counts[c] == moving.point_counts.max()
     np.testing.assert_allclose(moving.poses[c][:3, :3], np.eye(3))
+    # each canonical point keeps the ray time of the lidar point it came from
+    for o in lifted.observations[1]:
+        np.testing.assert_array_equal(moving.point_times[moving.point_frames == o.frame], o.times)
     # the parked car does not move: it becomes static
     converted = convert_static_instances(tracks)
     assert [i.instance_id for i in converted.instances] == [1]
@@ -170,6 +178,7 @@ def test_registration_trajectories_and_static_conversion(scene, oracle_masks, tm
     converted.save(tmp_path / "t.npz")
     back = InstanceTracks.load(tmp_path / "t.npz")
     np.testing.assert_allclose(back.instance(1).poses, moving.poses)
+    np.testing.assert_array_equal(back.instance(1).point_times, moving.point_times)
     assert back.static_instances[0].instance_id == 2
 
 

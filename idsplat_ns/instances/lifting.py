@@ -12,6 +12,7 @@ from __future__ import annotations
 from collections import Counter, defaultdict
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Optional
 
 import cv2
 import numpy as np
@@ -60,6 +61,9 @@ class InstanceObservation:
     """[N] int32 index into ``scene.images`` of the image the point was painted from."""
     uv: np.ndarray
     """[N, 2] float32 pixel coordinates of the point in that image."""
+    times: Optional[np.ndarray] = None
+    """[N] float64 seconds: when the lidar ray of each point was fired (a sweep takes 0.1 s, in
+    which a car at 12 m/s moves 1.2 m). None where unknown: the frame's time is used."""
 
 
 @dataclass
@@ -80,6 +84,8 @@ class LiftedInstances:
                 arrays[f"{iid}_{o.frame}_points"] = o.points
                 arrays[f"{iid}_{o.frame}_image_ids"] = o.image_ids
                 arrays[f"{iid}_{o.frame}_uv"] = o.uv
+                if o.times is not None:
+                    arrays[f"{iid}_{o.frame}_times"] = o.times
         save_npz(path, arrays, index)
 
     @classmethod
@@ -90,7 +96,8 @@ class LiftedInstances:
             iid = int(key)
             labels[iid] = entry["label"]
             observations[iid] = [
-                InstanceObservation(f, data[f"{iid}_{f}_points"], data[f"{iid}_{f}_image_ids"], data[f"{iid}_{f}_uv"])
+                InstanceObservation(f, data[f"{iid}_{f}_points"], data[f"{iid}_{f}_image_ids"], data[f"{iid}_{f}_uv"],
+                                    data.get(f"{iid}_{f}_times"))
                 for f in entry["frames"]
             ]
         return cls(labels, observations)
@@ -176,8 +183,8 @@ def paint_points(scene: Scene, masks: InstanceMaskSet, config: LiftingConfig, pr
             continue
         if id(sweep) not in sweep_cache:
             ranges = sweep.ranges[sweep.returned]
-            sweep_cache[id(sweep)] = (frame, sweep.points, ranges <= config.max_distance)
-        frame, points, near = sweep_cache[id(sweep)]
+            sweep_cache[id(sweep)] = (frame, sweep.points, ranges <= config.max_distance, sweep.times[sweep.returned])
+        frame, points, near, _ = sweep_cache[id(sweep)]
         eroded = erode_instance_map_adaptive(ids, config.erosion_px, config.min_kept_area)
         proj = image.project(points)
         ok = proj.valid & near
@@ -197,7 +204,8 @@ def paint_points(scene: Scene, masks: InstanceMaskSet, config: LiftingConfig, pr
 def lift_instances(scene: Scene, masks: InstanceMaskSet, config: LiftingConfig = LiftingConfig(), progress: bool = True) -> LiftedInstances:
     """Lidar points of every instance at every frame where it is masked."""
     painted, co_visible, sweep_cache = paint_points(scene, masks, config, progress)
-    points_of_frame = {frame: pts for frame, pts, _ in sweep_cache.values()}
+    points_of_frame = {frame: pts for frame, pts, _, _ in sweep_cache.values()}
+    times_of_frame = {frame: t for frame, _, _, t in sweep_cache.values()}
 
     # Merge IDs that claim the same lidar points at one frame but never share an image.
     together = {(a, b) for s in co_visible for a in s for b in s if a < b}
@@ -225,13 +233,13 @@ def lift_instances(scene: Scene, masks: InstanceMaskSet, config: LiftingConfig =
             uv = np.concatenate([p[2] for p in parts])
             idx, first = np.unique(idx, return_index=True)  # a point seen by two cameras counts once
             img, uv = img[first], uv[first]
-            pts = points_of_frame[frame][idx]
+            pts, ray_times = points_of_frame[frame][idx], times_of_frame[frame][idx]
             if config.use_dbscan:
                 keep = largest_cluster(pts, config.dbscan_eps, config.dbscan_min_samples)
-                pts, img, uv = pts[keep], img[keep], uv[keep]
+                pts, img, uv, ray_times = pts[keep], img[keep], uv[keep], ray_times[keep]
             if len(pts) < config.min_points:
                 continue
-            observations[root].append(InstanceObservation(frame, pts, img, uv))
+            observations[root].append(InstanceObservation(frame, pts, img, uv, ray_times.astype(np.float64)))
     for k in list(observations):
         members = [m for m in masks.labels if uf.find(m) == k] or [k]
         votes = Counter(masks.labels.get(m, "object") for m in members)

@@ -13,12 +13,14 @@ from typing import Callable, Optional
 
 import numpy as np
 
+from idsplat_ns.data.geometry import interpolate_poses
 from idsplat_ns.data.scene import Scene
 from idsplat_ns.errors import IDSplatError
 from idsplat_ns.instances.amodal_centre import AmodalCentreConfig, complete_centres
 from idsplat_ns.instances.cache import atomic_path, hash_json, remove_stale_temporaries, scene_fingerprint
 from idsplat_ns.instances.features.base import PointFeatures
 from idsplat_ns.instances.smoothing import SmoothingConfig, smooth_trajectory
+from idsplat_ns.instances.smoothing.smoother import SmoothedTrajectory
 from idsplat_ns.instances.features.config import FeatureConfig, make_feature_extractor, resolve_feature_kind
 from idsplat_ns.instances.lifting import LiftedInstances, LiftingConfig, lift_instances
 from idsplat_ns.instances.masks.base import InstanceMaskSet
@@ -27,10 +29,15 @@ from idsplat_ns.instances.masks.perturb import MaskNoiseConfig, perturb_mask_set
 from idsplat_ns.instances.masks.precomputed import load_mask_set
 from idsplat_ns.instances.static_conversion import StaticConversionConfig, convert_static_instances
 from idsplat_ns.instances.trajectory_estimation import TrajectoryConfig, estimate_trajectories
-from idsplat_ns.instances.tracks import InstanceTracks
+from idsplat_ns.instances.tracks import InstanceTrack, InstanceTracks
 
-# Bumped when what the registration stage stores changes (2: per-point origin frames).
-TRACKS_FORMAT = 2
+# Bumped when what the registration stage stores changes (2: per-point origin frames; 3: ray times).
+TRACKS_FORMAT = 3
+# Bumped when what the lifting stage stores changes (2: per-point ray times).
+LIFTING_FORMAT = 2
+# Bumped when the registration gives other results for the same settings, so that a cache made by
+# older code is not reused (2: ICP linearised about the pairs' centroid).
+REGISTRATION_VERSION = 2
 
 
 @dataclass(frozen=True)
@@ -101,17 +108,59 @@ def _cached_file(path: Path, compute: Callable[[], object], save: Callable[[obje
     return result, False
 
 
-def _smooth(tracks: InstanceTracks, config: SmoothingConfig) -> InstanceTracks:
-    """Replace each dynamic instance's poses by smoothed ones (valid within the measured span)."""
+def smooth_tracks(tracks: InstanceTracks, config: SmoothingConfig) -> InstanceTracks:
+    """Replace each dynamic instance's poses by smoothed ones at the frame times (valid within the
+    measured span).
+
+    Each registration is placed at its points' mean ray time (``config.measurement_times``), not
+    the frame's: the rays that hit a car are fired up to half a sweep away from the frame time,
+    and a car at 12 m/s is 0.3 m elsewhere then (measured on the synthetic street). The poses are
+    then read at the frame times from the CT model, and each point is re-posed with the pose at
+    its own ray time (``config.repose_points``), which also undoes the car's motion during the
+    sweep, as the oracle does with the annotated boxes.
+    """
     out = []
     times = np.asarray(tracks.frame_times, np.float64)
     for inst in tracks.instances:
-        sm = smooth_trajectory(times, inst.poses, inst.valid, config)
+        meas = inst.measurement_times(times) if config.measurement_times else times
+        sm = smooth_trajectory(meas, inst.poses, inst.valid, config)
         lo, hi = sm.span
+        slack = float(np.max(np.abs(meas - times)))  # frame times lie at most this far outside [lo, hi]
+        valid = (meas >= lo) & (meas <= hi)
+        frame_poses = np.array(sm.poses, dtype=np.float64, copy=True)  # states at the measurement times
+        if slack > 0 and valid.any():
+            valid = (times >= meas[valid].min() - slack) & (times <= meas[valid].max() + slack)
+            for k in np.flatnonzero(valid):
+                frame_poses[k] = sm.pose_at(float(times[k]), margin=slack)
         # Points of measurements the smoother rejects were placed by a wrong registration.
         inst = inst.keep_points_of_frames(sm.inliers) if config.drop_outlier_points else inst
-        out.append(replace(inst, poses=np.asarray(sm.poses), valid=(times >= lo) & (times <= hi), measured_valid=inst.valid))
+        if config.repose_points and inst.point_frames is not None:
+            inst = inst.with_points_posed_by(_poses_at_point_times(sm, inst, meas, slack))
+        out.append(replace(inst, poses=frame_poses, valid=valid, measured_valid=inst.valid))
     return replace(tracks, instances=out, metadata={**tracks.metadata, "smoothed": True})
+
+
+def _poses_at_point_times(
+    sm: SmoothedTrajectory,
+    inst: InstanceTrack,
+    meas: np.ndarray,  # [F] measurement times (seconds)
+    slack: float,
+    bins: int = 5,
+) -> np.ndarray:  # [N, 4, 4] canonical -> world at each canonical point's ray time
+    """The smoothed pose at each canonical point's ray time (its frame's measurement time where
+    ray times are unknown): the CT model read at ``bins`` times across each frame's rays, and
+    interpolated between them (a sweep is short: the motion is smooth over it)."""
+    out = np.empty((len(inst.canonical_points), 4, 4))
+    t_of_point = meas[inst.point_frames] if inst.point_times is None else inst.point_times
+    margin = max(slack, 0.0) + 0.1  # rays may lie a half sweep beyond the span's end measurement
+    for f in np.unique(inst.point_frames):
+        rows = np.flatnonzero(inst.point_frames == f)
+        t = t_of_point[rows]
+        grid = np.linspace(t.min(), t.max(), bins) if t.max() > t.min() else t[:1]
+        poses = [sm.pose_at(float(g), margin=margin) for g in grid]
+        poses = np.stack([p if p is not None else sm.poses[f] for p in poses])
+        out[rows] = poses[0] if len(grid) == 1 else interpolate_poses(grid, poses, t, extrapolate=True)
+    return out
 
 
 def run_preprocessing(
@@ -164,7 +213,7 @@ def run_preprocessing(
 
     # 2. Point painting (lifting masks to lidar).
     t0 = time.perf_counter()
-    lift_key = hash_json({"masks": mask_key, "lifting": asdict(config.lifting)})
+    lift_key = hash_json({"masks": mask_key, "lifting": asdict(config.lifting), "format": LIFTING_FORMAT})
     lifted, cached = _cached_file(
         cache_dir / f"lifting-{lift_key}.npz",
         lambda: lift_instances(scene, masks, config.lifting, progress),
@@ -189,7 +238,8 @@ def run_preprocessing(
 
     # 4. Registration.
     t0 = time.perf_counter()
-    reg_key = hash_json({"features": feat_key, "trajectory": asdict(config.trajectory), "format": TRACKS_FORMAT})
+    reg_key = hash_json({"features": feat_key, "trajectory": asdict(config.trajectory), "format": TRACKS_FORMAT,
+                         "version": REGISTRATION_VERSION})
     tracks, cached = _cached_file(
         cache_dir / f"registration-{reg_key}.npz",
         lambda: estimate_trajectories(scene, lifted, features, config.trajectory, progress),
@@ -215,7 +265,7 @@ def run_preprocessing(
         smoothing = config.smoothing
         tracks, cached = _cached_file(
             cache_dir / f"smoothing-{smooth_key}.npz",
-            lambda: _smooth(tracks, smoothing),
+            lambda: smooth_tracks(tracks, smoothing),
             lambda r, p: r.save(p), InstanceTracks.load)
         timings.append(StageTiming("smoothing", time.perf_counter() - t0, cached))
 

@@ -45,6 +45,10 @@ class InstanceTrack:
     point_frames: Optional[np.ndarray] = None
     """[N] int frame each canonical point was registered from (None where not recorded), so that
     points of frames the smoother rejects can leave the canonical set."""
+    point_times: Optional[np.ndarray] = None
+    """[N] float64 seconds: when each canonical point's lidar ray was fired (None where not
+    recorded). A frame's registration poses the instance at about its points' mean time, and the
+    smoother places it there (see ``measurement_times``)."""
 
     def keep_points_of_frames(self, frames: np.ndarray, min_points: int = 10) -> "InstanceTrack":
         """A copy whose canonical points come only from ``frames`` ([F] bool); unchanged when the
@@ -55,8 +59,33 @@ class InstanceTrack:
         if keep.all() or keep.sum() < min_points:
             return self
         colors = None if self.canonical_colors is None else self.canonical_colors[keep]
+        times = None if self.point_times is None else self.point_times[keep]
         return replace(self, canonical_points=self.canonical_points[keep], canonical_colors=colors,
-                       point_frames=self.point_frames[keep])
+                       point_frames=self.point_frames[keep], point_times=times)
+
+    def with_points_posed_by(self, poses: np.ndarray) -> "InstanceTrack":  # poses: [N, 4, 4]
+        """A copy whose canonical points are re-derived for new poses, one per point ([N, 4, 4],
+        canonical -> world, e.g. the smoothed trajectory at each point's ray time): each point keeps
+        the world position it had under ``self.poses`` at its frame. Points of unknown origin frame
+        are left as they are."""
+        if self.point_frames is None:
+            return self
+        M = np.linalg.inv(poses) @ self.poses[self.point_frames]  # old canonical -> world -> new canonical
+        pts = np.einsum("nij,nj->ni", M[:, :3, :3], self.canonical_points) + M[:, :3, 3]
+        return replace(self, canonical_points=pts)
+
+    def measurement_times(self, frame_times: np.ndarray) -> np.ndarray:  # frame_times: [F] -> [F]
+        """When each frame's registration saw the instance: the mean ray time of its points where
+        they are recorded, else the frame's time. Falls back to ``frame_times`` when the result
+        would not increase strictly."""
+        out = np.array(frame_times, dtype=np.float64, copy=True)
+        if self.point_frames is None or self.point_times is None:
+            return out
+        sums = np.bincount(self.point_frames, weights=self.point_times, minlength=len(out))[: len(out)]
+        counts = np.bincount(self.point_frames, minlength=len(out))[: len(out)]
+        seen = counts > 0
+        out[seen] = sums[seen] / counts[seen]
+        return out if np.all(np.diff(out) > 0) else np.array(frame_times, dtype=np.float64, copy=True)
 
     @property
     def num_valid(self) -> int:
@@ -113,6 +142,8 @@ class InstanceTracks:
                     arrays[f"{key}_measured_valid"] = inst.measured_valid
                 if inst.point_frames is not None:
                     arrays[f"{key}_point_frames"] = inst.point_frames
+                if inst.point_times is not None:
+                    arrays[f"{key}_point_times"] = inst.point_times
         save_npz(path, arrays, {"instances": index, "metadata": self.metadata})
 
     @classmethod
@@ -134,6 +165,7 @@ class InstanceTracks:
                 canonical_frame=entry["canonical_frame"],
                 measured_valid=data.get(f"{key}_measured_valid"),
                 point_frames=data.get(f"{key}_point_frames"),
+                point_times=data.get(f"{key}_point_times"),
             )
             (out.instances if entry["group"] == "dynamic" else out.static_instances).append(inst)
         return out

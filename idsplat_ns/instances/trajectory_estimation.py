@@ -144,10 +144,15 @@ def estimate_instance_track(
             _correct_headings(poses, valid, fitness, counts, canon_pts, canon_cols, canon_frames, by_frame, times, config)
     colors = None if any(c is None for c in canon_cols) else np.concatenate(canon_cols)
     point_frames = np.concatenate([np.full(len(p), f, np.int32) for p, f in zip(canon_pts, canon_frames)])
+    # Every chunk is its frame's whole observation, in order, so the ray times line up.
+    by_frame_obs = {o.frame: o for o in observations}
+    point_times = None
+    if all(by_frame_obs[f].times is not None for f in canon_frames):
+        point_times = np.concatenate([by_frame_obs[f].times for f in canon_frames])
     return InstanceTrack(
         instance_id=iid, label=label, canonical_points=np.concatenate(canon_pts), canonical_colors=colors,
         poses=fill_invalid_poses(poses, valid), valid=valid, point_counts=counts, fitness=fitness,
-        canonical_frame=int(ref.frame), point_frames=point_frames,
+        canonical_frame=int(ref.frame), point_frames=point_frames, point_times=point_times,
     )
 
 

@@ -38,24 +38,30 @@ class SmoothedTrajectory:
     outlier_threshold: float  # the whitened-error threshold that was applied
     span: tuple[float, float]  # first and last time with a measurement near the result (config.span_max_distance): the instance exists in between
 
-    def pose_at(self, time: float) -> np.ndarray | None:
-        """Pose [4, 4] at ``time`` [s], or None outside ``span`` (the instance is absent there).
+    def pose_at(self, time: float, margin: float = 0.0) -> np.ndarray | None:
+        """Pose [4, 4] at ``time`` [s], or None outside ``span`` widened by ``margin`` seconds at
+        both ends (the instance is absent there).
 
         CT propagation from the nearest earlier state with that state's speed and curvature; the
         small mismatch between the prediction and the next state (the motion factor is soft) is
         spread linearly over the interval on SE(3), so the result is continuous and equals the
-        states at their own times.
+        states at their own times. Beyond the first or last state (within ``margin``), the CT
+        model of that state is propagated forwards or backwards.
         """
         t0, t1 = self.span
-        if math.isnan(time) or not (t0 <= time <= t1):
+        if math.isnan(time) or not (t0 - margin <= time <= t1 + margin):
             return None
+        S = shared_rotation_pose(self.shared_rotation)
+        if time < self.times[0] or time > self.times[-1]:
+            k = 0 if time < self.times[0] else len(self.times) - 1
+            M = self.poses[k] @ S @ ct_delta_pose(self.speeds[k], self.curvatures[k], float(time - self.times[k]))
+            return M @ S.T
         k = int(np.searchsorted(self.times, time, side="right")) - 1
         k = min(max(k, 0), len(self.times) - 1)
         if k == len(self.times) - 1 or time == self.times[k]:
             return self.poses[k].copy()
         dt_full = float(self.times[k + 1] - self.times[k])
         dt = float(time - self.times[k])
-        S = shared_rotation_pose(self.shared_rotation)
         M_k = self.poses[k] @ S
         M_next = self.poses[k + 1] @ S
         predicted_next = M_k @ ct_delta_pose(self.speeds[k], self.curvatures[k], dt_full)
