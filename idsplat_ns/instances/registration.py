@@ -166,9 +166,9 @@ def icp_point_to_plane(
 ) -> np.ndarray:
     """Point-to-plane ICP (small-angle linearisation): each target point is paired with its nearest
     transformed source point within ``max_distance`` and the distance along the source normal is
-    minimised. The small rotation is about the paired points' centroid, not the world origin: about
-    an origin 30 m away, the minimum-norm step of a flat (degenerate) patch is a rotation with a
-    30 m lever, which slid a car 12 m and turned it 48 deg in a few iterations."""
+    minimised. The small rotation is about the paired points' centroid, not the world origin: with
+    the origin 24 m away, a nearly flat view's step was applied with a 24 m lever, which threw a
+    car leaving the view 12 m and turned it 48 deg in two iterations."""
     if len(source_xyz) < 6 or len(target_xyz) < 6:
         return transform
     normals = estimate_normals(source_xyz)

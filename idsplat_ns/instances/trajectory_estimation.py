@@ -149,6 +149,8 @@ def estimate_instance_track(
     point_times = None
     if all(by_frame_obs[f].times is not None for f in canon_frames):
         point_times = np.concatenate([by_frame_obs[f].times for f in canon_frames])
+        if len(point_times) != len(point_frames):  # a chunk that is not a whole observation: a bug
+            raise ValueError(f"instance {iid}: canonical chunks do not match their observations' ray times")
     return InstanceTrack(
         instance_id=iid, label=label, canonical_points=np.concatenate(canon_pts), canonical_colors=colors,
         poses=fill_invalid_poses(poses, valid), valid=valid, point_counts=counts, fitness=fitness,
