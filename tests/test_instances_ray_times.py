@@ -38,7 +38,7 @@ def _skewed_tracks(num_frames: int = 12, seed: int = 0) -> tuple[InstanceTracks,
         body = rng.uniform(-1, 1, (300, 3)) * [2.25, 0.9, 0.75]
         delay = 0.03 * (1 - f / num_frames) + 0.005
         t = tf + delay + 0.03 * (2.25 - body[:, 0]) / 4.5  # the scan reaches the rear last
-        world = np.stack([transform_points(_true_pose(ti), b[None])[0] for ti, b in zip(t, body)])
+        world = body + np.c_[SPEED * t, np.full(len(t), 5.0), np.full(len(t), 0.8)]  # _true_pose at each ray's time
         poses[f] = _true_pose(float(t.mean()))
         pts.append(transform_points(invert_pose(poses[f]), world))
         frames.append(np.full(len(body), f, np.int32))

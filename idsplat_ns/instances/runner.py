@@ -152,7 +152,7 @@ def _poses_at_point_times(
     interpolated between them (a sweep is short: the motion is smooth over it)."""
     out = np.empty((len(inst.canonical_points), 4, 4))
     t_of_point = meas[inst.point_frames] if inst.point_times is None else inst.point_times
-    margin = max(slack, 0.0) + 0.1  # rays may lie a half sweep beyond the span's end measurement
+    margin = slack + 0.1  # a frame's rays may lie up to a sweep (0.1 s) from its end measurement's mean time
     for f in np.unique(inst.point_frames):
         rows = np.flatnonzero(inst.point_frames == f)
         t = t_of_point[rows]

@@ -12,6 +12,7 @@ from typing import Optional
 
 import numpy as np
 
+from idsplat_ns.data.geometry import invert_pose
 from idsplat_ns.errors import IDSplatError
 from idsplat_ns.instances.cache import load_npz, save_npz
 
@@ -70,7 +71,7 @@ class InstanceTrack:
         are left as they are."""
         if self.point_frames is None:
             return self
-        M = np.linalg.inv(poses) @ self.poses[self.point_frames]  # old canonical -> world -> new canonical
+        M = invert_pose(poses) @ self.poses[self.point_frames]  # old canonical -> world -> new canonical
         pts = np.einsum("nij,nj->ni", M[:, :3, :3], self.canonical_points) + M[:, :3, 3]
         return replace(self, canonical_points=pts)
 

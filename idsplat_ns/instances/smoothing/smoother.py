@@ -16,7 +16,7 @@ import numpy as np
 from idsplat_ns.instances.smoothing import factors as F
 from idsplat_ns.instances.smoothing.config import SmoothingConfig
 from idsplat_ns.data.geometry import invert_pose, rot_z, wrap_angle, yaw_of
-from idsplat_ns.instances.smoothing.ct_model import ct_delta_pose, shared_rotation_pose
+from idsplat_ns.instances.smoothing.ct_model import ct_delta_pose, ct_propagate, shared_rotation_pose
 
 # Half-width (in measurements) of the running median used for the initial guess.
 _INIT_MEDIAN_HALF_WIDTH = 2
@@ -51,17 +51,17 @@ class SmoothedTrajectory:
         t0, t1 = self.span
         if math.isnan(time) or not (t0 - margin <= time <= t1 + margin):
             return None
-        S = shared_rotation_pose(self.shared_rotation)
         if time < self.times[0] or time > self.times[-1]:
             k = 0 if time < self.times[0] else len(self.times) - 1
-            M = self.poses[k] @ S @ ct_delta_pose(self.speeds[k], self.curvatures[k], float(time - self.times[k]))
-            return M @ S.T
+            return ct_propagate(self.poses[k], self.shared_rotation, self.speeds[k], self.curvatures[k],
+                                float(time - self.times[k]))
         k = int(np.searchsorted(self.times, time, side="right")) - 1
         k = min(max(k, 0), len(self.times) - 1)
         if k == len(self.times) - 1 or time == self.times[k]:
             return self.poses[k].copy()
         dt_full = float(self.times[k + 1] - self.times[k])
         dt = float(time - self.times[k])
+        S = shared_rotation_pose(self.shared_rotation)
         M_k = self.poses[k] @ S
         M_next = self.poses[k + 1] @ S
         predicted_next = M_k @ ct_delta_pose(self.speeds[k], self.curvatures[k], dt_full)
