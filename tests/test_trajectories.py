@@ -155,3 +155,39 @@ def test_from_instance_tracks_keeps_ids_and_float32_default():
     empty = InstanceTrajectories.from_instance_tracks(InstanceTracks(np.arange(F), TIMES, []))
     R, trans, present = empty.poses_at(0.3)
     assert R.shape == (0, 3, 3) and trans.shape == (0, 3) and present.shape == (0,)
+
+
+def test_a_checkpoint_defines_the_trajectories_not_todays_preprocessing():
+    """ns-eval re-runs preprocessing; code or settings that changed since training find other
+    instances (seed 5 of the small street: 6 instead of 8). Loading the checkpoint rebuilds the
+    trajectories in its shape, and they then pose and show instances exactly as trained."""
+    from types import SimpleNamespace
+
+    from idsplat_ns.nerfstudio.model import IDSplatModel
+
+    trained, _, _ = _two_instances(span_margin=None, dtype=torch.float32)
+    with torch.no_grad():
+        trained.positions.add_(0.3)  # "optimised"
+        trained.rotation_deltas.add_(0.01)
+    state = {f"scene_model.trajectories.{k}": v for k, v in trained.state_dict().items()}
+    state["scene_model.camera_time_offset"] = torch.tensor([0.01, -0.02])
+    today = InstanceTrajectories(TIMES[:4], np.array([1]), np.tile(np.eye(4), (1, 4, 1, 1)), np.ones((1, 4), bool))
+    model = SimpleNamespace(scene_model=torch.nn.Module(), config=SimpleNamespace(refine_trajectories=True), device="cpu")
+    model.scene_model.trajectories = today
+    model.scene_model.camera_time_offset = None
+    assert IDSplatModel._trajectories_like(model, state)
+    model.scene_model.load_state_dict({k.removeprefix("scene_model."): v for k, v in state.items()})
+    loaded = model.scene_model.trajectories
+    loaded.reset_span_margin()
+    assert loaded.span_margin == pytest.approx(trained.span_margin)
+    assert loaded.instance_ids.tolist() == [3, 7]
+    for t in np.linspace(0.0, 1.1, 23):
+        R0, t0, p0 = trained.poses_at(float(t))
+        R1, t1, p1 = loaded.poses_at(float(t))
+        assert torch.equal(p0, p1)
+        torch.testing.assert_close(R1[p1], R0[p0])
+        torch.testing.assert_close(t1[p1], t0[p0])
+    # Same shape and IDs: nothing is rebuilt. No trajectories in the checkpoint: none here either.
+    assert not IDSplatModel._trajectories_like(model, state)
+    assert not IDSplatModel._trajectories_like(model, {"scene_model.gaussians.means": torch.zeros(1, 3)})
+    assert model.scene_model.trajectories is None and model.scene_model.camera_time_offset is None

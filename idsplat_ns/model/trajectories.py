@@ -201,6 +201,21 @@ class InstanceTrajectories(nn.Module):
         ids = np.array([i.instance_id for i in insts], dtype=np.int64)
         return cls(tracks.frame_times, ids, poses, valid, refine=refine, span_margin=span_margin, dtype=dtype)
 
+    @classmethod
+    def placeholder(cls, num_instances: int, num_steps: int, refine: bool = True,
+                    dtype: torch.dtype = torch.float32) -> InstanceTrajectories:
+        """Trajectories of the given sizes whose values a checkpoint's state dict replaces (ns-eval
+        and the viewer: a checkpoint, not today's preprocessing, says what the instances are).
+        Call :meth:`reset_span_margin` after loading."""
+        return cls(np.arange(max(num_steps, 1), dtype=np.float64), np.arange(1, num_instances + 1),
+                   np.tile(np.eye(4), (num_instances, max(num_steps, 1), 1, 1)),
+                   np.ones((num_instances, max(num_steps, 1)), bool), refine=refine, dtype=dtype)
+
+    def reset_span_margin(self) -> None:
+        """The default presence margin (half the median step) for the current ``frame_times``."""
+        ft = self.frame_times.detach().cpu().double().numpy()
+        self.span_margin = 0.5 * float(np.median(np.diff(ft))) if len(ft) > 1 else 0.0
+
     # -- sizes and parameter groups ----------------------------------------------------------
 
     @property

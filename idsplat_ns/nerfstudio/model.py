@@ -183,7 +183,34 @@ class IDSplatModel(Model):
         if num != self.gaussians.num:
             self.gaussians.resize_(num)
         self.step = 10**9  # a loaded model renders at full resolution
-        return super().load_state_dict(state_dict, strict=strict, **kwargs)
+        rebuilt = self._trajectories_like(state_dict)
+        out = super().load_state_dict(state_dict, strict=strict, **kwargs)
+        if rebuilt:
+            self.scene_model.trajectories.reset_span_margin()
+        return out
+
+    def _trajectories_like(self, state_dict) -> bool:
+        """Make the instance trajectories (and the camera time offsets that come with them) the
+        checkpoint's shape. The datamanager re-runs preprocessing at ns-eval/viewer time, and a
+        different version of the code (or settings) can find other instances than the run was
+        trained with: the checkpoint is the truth. Returns whether the trajectories were rebuilt."""
+        from idsplat_ns.model.trajectories import InstanceTrajectories
+
+        sm = self.scene_model
+        prefix = "scene_model.trajectories."
+        if prefix + "positions" not in state_dict:
+            sm.trajectories = None
+            sm.camera_time_offset = None
+            return False
+        Z, F = state_dict[prefix + "positions"].shape[:2]
+        ids = state_dict[prefix + "instance_ids"]
+        current = sm.trajectories
+        if current is not None and current.positions.shape[:2] == (Z, F) and torch.equal(current.instance_ids.cpu(), ids.cpu()):
+            return False
+        sm.trajectories = InstanceTrajectories.placeholder(Z, F, refine=self.config.refine_trajectories).to(self.device)
+        if "scene_model.camera_time_offset" in state_dict and sm.camera_time_offset is None:
+            sm.camera_time_offset = nn.Parameter(torch.zeros_like(state_dict["scene_model.camera_time_offset"]))
+        return True
 
     # --- rendering ----------------------------------------------------------------------------
     def _camera_inputs(self, camera: Cameras, downscale: int) -> tuple[Tensor, Tensor, int, int]:
