@@ -126,3 +126,86 @@ def test_a_slid_first_pass_registration_is_redone_from_the_motion(monkeypatch):
     assert error(unchecked, 0) > 3.0
     assert checked.valid[0] and error(checked, 0) < 0.1
     assert max(error(checked, f) for f in range(1, 10)) < 0.1
+
+
+def _sliding_scene(slid_frames: set[int], foreign_frames: set[int] = frozenset()):
+    """A car at 8 m/s over 10 frames; ``slid_frames`` see only its front 2 m (a car cut at the
+    image border), ``foreign_frames`` a wall 0.6 m behind where it is (another object's points)."""
+    rng = np.random.default_rng(3)
+    body = np.concatenate([box_surface(3000, CAR_SIZE, rng), box_surface(600, np.array([2.0, 1.6, 0.6]), rng) + [-0.8, 0, 1.0]])
+    t, poses = _straight_track()
+    obs, feats = [], {}
+    for f in range(len(t)):
+        part = body[rng.random(len(body)) < 0.5]
+        if f in slid_frames:
+            part = part[part[:, 0] > CAR_SIZE[0] / 2 - 2.0]
+        world = transform_points(poses[f], part)
+        if f in foreign_frames:
+            world = np.c_[rng.uniform(-2, 2, 300), np.full(300, -0.6), rng.uniform(-0.7, 0.7, 300)] + poses[f][:3, 3]
+            part = world - poses[f][:3, 3]
+        obs.append(InstanceObservation(f, world, np.zeros(len(world), np.int32), np.zeros((len(world), 2), np.float32)))
+        feats[(5, f)] = body_features(part)
+    scene = SimpleNamespace(num_frames=len(t), frame_times=t, frame_indices=np.arange(len(t)))
+    return scene, LiftedInstances({5: "car"}, {5: obs}), PointFeatures("test", feats, {}), poses, obs
+
+
+def _slide(monkeypatch, obs, frames: set[int], metres: float = 2.0) -> None:
+    """Registration and the motion-prior ICP of ``frames`` slide ``metres`` along the car (what
+    they did on the small street, seed 5: a car leaving the front-left camera's view)."""
+    import idsplat_ns.instances.trajectory_estimation as te
+    from idsplat_ns.instances.registration import RegistrationResult
+
+    real_register, real_prior = te.register, te.motion_prior_pose
+    slid_targets = [obs[f].points for f in frames]
+
+    def is_slid(target):
+        return any(len(target) == len(p) and np.array_equal(target, p) for p in slid_targets)
+
+    def register(source, source_feat, target, target_feat, config):
+        result = real_register(source, source_feat, target, target_feat, config)
+        if not is_slid(target):
+            return result
+        moved = result.transform.copy()
+        moved[0, 3] += metres
+        return RegistrationResult(moved, 0.9, True, result.num_correspondences, result.num_inlier_correspondences,
+                                  result.iterations)
+
+    def prior(prediction, source, target, config, radii=(0.5,)):
+        out = real_prior(prediction, source, target, config, radii)
+        if is_slid(target):
+            out = out.copy()
+            out[0, 3] += metres
+        return out
+
+    monkeypatch.setattr(te, "register", register)
+    monkeypatch.setattr(te, "motion_prior_pose", prior)
+
+
+def test_a_car_cut_at_the_image_border_coasts_on_the_motion_at_the_ends_only(monkeypatch):
+    scene, lifted, features, poses, obs = _sliding_scene({0, 4, 9})
+    _slide(monkeypatch, obs, {0, 4, 9})
+    flips = HeadingFlipConfig(enabled=False)
+    coasted = estimate_trajectories(scene, lifted, features, TrajectoryConfig(heading_flips=flips, min_segment_frames=0),
+                                    progress=False).instances[0]
+    strict = estimate_trajectories(scene, lifted, features,
+                                   TrajectoryConfig(heading_flips=flips, min_segment_frames=0, coast_frames=0),
+                                   progress=False).instances[0]
+    assert not strict.valid[[0, 4, 9]].any()  # both slid far beyond the motion gate: lost
+    # The ends take the constant-velocity prediction, which is exact on this straight track...
+    assert coasted.valid[0] and coasted.valid[9]
+    for f in (0, 9):
+        expected = poses[f] @ np.linalg.inv(poses[5]) @ coasted.poses[5]
+        assert np.linalg.norm(coasted.poses[f][:3, 3] - expected[:3, 3]) < 0.05
+    # ... an inside gap stays a gap (the trajectory interpolates it), and coasted points stay out
+    # of the canonical set.
+    assert not coasted.valid[4]
+    assert not np.isin([0, 4, 9], coasted.point_frames).any()
+
+
+def test_points_that_do_not_fit_the_prediction_do_not_coast(monkeypatch):
+    scene, lifted, features, poses, obs = _sliding_scene(set(), foreign_frames={9})
+    _slide(monkeypatch, obs, {9})
+    track = estimate_trajectories(scene, lifted, features,
+                                  TrajectoryConfig(heading_flips=HeadingFlipConfig(enabled=False), min_segment_frames=0),
+                                  progress=False).instances[0]
+    assert track.valid[:9].all() and not track.valid[9]

@@ -58,6 +58,10 @@ class HeadingFlipConfig:
     the box's symmetries, and the direction of travel is noisier than the registered yaw."""
     min_track_displacement: float = 1.0
     """Metres: instances that move less than this (the paper's static threshold) are left alone."""
+    skip_stationary: bool = True
+    """Instances whose lidar points stay in place in the world (the world-overlap test of
+    static_conversion.py, with its defaults) are left alone too: a parked car has no direction of
+    travel, and the "motion" of its slid registrations is not one."""
 
 
 def travel_directions(

@@ -36,8 +36,9 @@ TRACKS_FORMAT = 3
 # Bumped when what the lifting stage stores changes (2: per-point ray times).
 LIFTING_FORMAT = 2
 # Bumped when the registration gives other results for the same settings, so that a cache made by
-# older code is not reused (2: ICP linearised about the pairs' centroid).
-REGISTRATION_VERSION = 2
+# older code is not reused (2: ICP linearised about the pairs' centroid; 3: heading turns about the
+# amodal centre, parked instances not turned).
+REGISTRATION_VERSION = 3
 
 
 @dataclass(frozen=True)
