@@ -182,3 +182,32 @@ def test_heading_turns_are_about_the_vehicle_centre_not_the_seen_part():
     # Without sensors or a known class, the middle of the points is all there is.
     for label, s in (("Car", None), ("thing", sensors)):
         np.testing.assert_allclose(_turn_centre(points, poses, list(range(12)), label, s), 0.5 * (points.min(0) + points.max(0)))
+
+
+def test_a_parked_car_with_slid_registrations_is_not_turned():
+    """Registrations of a parked car slid 0.4 m a frame along it (more than the 1 m the
+    displacement check allows) and one came out turned: its lidar points stay in place in the
+    world, so it has no direction of travel and nothing is turned or dropped."""
+    rng = np.random.default_rng(2)
+    body = box_surface(800, CAR_SIZE, rng)
+    parked = make_pose(rot_z(0.3), np.array([4.0, 2.0, 0.75]))
+    world = transform_points(parked, body)
+    t = np.arange(8) * 0.2
+    slid = np.stack([parked @ make_pose(np.eye(3), np.array([0.4 * k, 0.0, 0.0])) for k in range(8)])
+    slid[5] = turn_about(slid[5], np.zeros(3), np.pi)
+    observations = {k: InstanceObservation(k, world + rng.normal(0, 0.01, world.shape), np.zeros(len(world), np.int32),
+                                           np.zeros((len(world), 2), np.float32)) for k in range(8)}
+
+    def correct(skip: bool):
+        poses, valid = slid.copy(), np.ones(8, bool)
+        pts = [transform_points(invert_pose(slid[k]), observations[k].points) for k in range(8)]
+        config = TrajectoryConfig(heading_flips=HeadingFlipConfig(skip_stationary=skip))
+        _correct_headings(poses, valid, np.ones(8), np.full(8, len(world)), pts, [None] * 8, list(range(8)), observations,
+                          t, config)
+        return poses, valid
+
+    poses, valid = correct(True)
+    np.testing.assert_array_equal(poses, slid)
+    assert valid.all()
+    poses, valid = correct(False)  # the check is what leaves it alone
+    assert not (np.array_equal(poses, slid) and valid.all())

@@ -26,8 +26,8 @@ from idsplat_ns.instances.amodal_centre import amodal_centre, travel_direction, 
 from idsplat_ns.instances.features.base import PointFeatures
 from idsplat_ns.instances.heading_flips import HeadingFlipConfig, canonical_box_centre, heading_errors, turn_about
 from idsplat_ns.instances.lifting import InstanceObservation, LiftedInstances
-from idsplat_ns.instances.static_conversion import StaticConversionConfig, is_stationary
 from idsplat_ns.instances.registration import RegistrationConfig, icp_point_to_plane, register, registration_fitness
+from idsplat_ns.instances.static_conversion import StaticConversionConfig, is_stationary
 from idsplat_ns.instances.tracks import InstanceTrack, InstanceTracks, fill_invalid_poses
 
 
@@ -151,8 +151,7 @@ def estimate_instance_track(
                     valid[f] = False
             _register_chain(observations, poses, valid, fitness, canon_pts, canon_feat, canon_frames, times, config,
                             lambda o: _obs_features(features, fid, o), accept)
-        if config.heading_flips.enabled and times is not None and not (
-                config.heading_flips.skip_stationary and is_stationary(observations, StaticConversionConfig())):
+        if config.heading_flips.enabled and times is not None:
             by_frame = {o.frame: o for o in observations}
             _correct_headings(poses, valid, fitness, counts, canon_pts, canon_cols, canon_frames, by_frame, times, config,
                               label, sensor_positions)
@@ -301,6 +300,8 @@ def _correct_headings(
     flips = config.heading_flips
     t = poses[valid, :3, 3]
     if len(t) < 2 or np.max(np.linalg.norm(t[:, None] - t[None], axis=-1)) < flips.min_track_displacement:
+        return
+    if flips.skip_stationary and is_stationary(list(by_frame.values()), StaticConversionConfig()):
         return
     error = heading_errors(times, poses, valid, counts, flips)
     wrong = np.isfinite(error)
