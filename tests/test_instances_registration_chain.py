@@ -130,7 +130,8 @@ def test_a_slid_first_pass_registration_is_redone_from_the_motion(monkeypatch):
 
 def _sliding_scene(slid_frames: set[int], foreign_frames: set[int] = frozenset()):
     """A car at 8 m/s over 10 frames; ``slid_frames`` see only its front 2 m (a car cut at the
-    image border), ``foreign_frames`` a wall 0.6 m behind where it is (another object's points)."""
+    image border), ``foreign_frames`` a flat wall 0.3 m inside its side (points that are not the
+    car's surface)."""
     rng = np.random.default_rng(3)
     body = np.concatenate([box_surface(3000, CAR_SIZE, rng), box_surface(600, np.array([2.0, 1.6, 0.6]), rng) + [-0.8, 0, 1.0]])
     t, poses = _straight_track()
@@ -190,7 +191,7 @@ def test_a_car_cut_at_the_image_border_coasts_on_the_motion_at_the_ends_only(mon
     strict = estimate_trajectories(scene, lifted, features,
                                    TrajectoryConfig(heading_flips=flips, min_segment_frames=0, coast_frames=0),
                                    progress=False).instances[0]
-    assert not strict.valid[[0, 4, 9]].any()  # both slid far beyond the motion gate: lost
+    assert not strict.valid[[0, 4, 9]].any()  # all three slid beyond the motion gate: lost
     # The ends take the constant-velocity prediction, which is exact on this straight track...
     assert coasted.valid[0] and coasted.valid[9]
     for f in (0, 9):
