@@ -59,6 +59,10 @@ class Scene:
     metadata: dict = field(default_factory=dict)
     """Parser-specific information (dataset version, generator settings, ...)."""
 
+    def lidar_positions(self) -> np.ndarray:  # -> [F, 3]
+        """Where the lidar was (world) at each frame's sweep."""
+        return np.stack([sweep.sensor_to_world[:3, 3] for sweep in self.lidar])
+
     @property
     def camera_names(self) -> list[str]:
         """Camera names in first-seen order."""

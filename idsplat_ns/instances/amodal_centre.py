@@ -128,6 +128,17 @@ def travel_direction(poses: np.ndarray, valid: np.ndarray) -> Optional[np.ndarra
     return total / max(np.linalg.norm(total), 1e-12)
 
 
+def sensors_in_canonical(
+    poses: np.ndarray,  # [F, 4, 4] canonical -> world
+    sensor_positions: np.ndarray,  # [F, 3] world
+    frames: np.ndarray,  # [K] frame indices
+) -> np.ndarray:  # -> [K, 3]
+    """The sensor at ``frames`` in the instance's canonical frame: ``R^T (s - t)``."""
+    k = np.asarray(frames)
+    R, t = poses[k, :3, :3], poses[k, :3, 3]
+    return np.einsum("kji,kj->ki", R, np.asarray(sensor_positions, np.float64)[k] - t)
+
+
 def complete_centres(
     tracks: InstanceTracks,
     sensor_positions: np.ndarray,  # [F, 3] the (main lidar) sensor in the world at each of the tracks' frames
@@ -144,9 +155,7 @@ def complete_centres(
         if size is None or forward is None or not measured.any() or len(inst.canonical_points) < 3:
             out.append(inst)
             continue
-        k = np.flatnonzero(measured)
-        R, t = inst.poses[k, :3, :3], inst.poses[k, :3, 3]
-        sensors = np.einsum("kji,kj->ki", R, sensor_positions[k] - t)  # world -> canonical
+        sensors = sensors_in_canonical(inst.poses, sensor_positions, np.flatnonzero(measured))
         c = amodal_centre(inst.canonical_points, forward, sensors, size[0], size[1], config.trim)
         points, poses = shift_origin(inst.canonical_points, inst.poses, c)
         moved[int(inst.instance_id)] = [float(x) for x in c]

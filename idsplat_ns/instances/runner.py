@@ -273,8 +273,7 @@ def run_preprocessing(
     # 7. Amodal canonical origins (cheap, not cached).
     t0 = time.perf_counter()
     if config.amodal.enabled:
-        sensors = np.stack([sweep.sensor_to_world[:3, 3] for sweep in scene.lidar])
-        tracks = complete_centres(tracks, sensors, config.amodal)
+        tracks = complete_centres(tracks, scene.lidar_positions(), config.amodal)
         timings.append(StageTiming("amodal centres", time.perf_counter() - t0, False,
                                    f"{len(tracks.metadata.get('amodal_centre_shift', {}))} moved"))
     else:

@@ -22,7 +22,7 @@ from tqdm import tqdm
 
 from idsplat_ns.data.geometry import invert_pose, transform_points
 from idsplat_ns.data.scene import Scene
-from idsplat_ns.instances.amodal_centre import amodal_centre, travel_direction, typical_size
+from idsplat_ns.instances.amodal_centre import amodal_centre, sensors_in_canonical, travel_direction, typical_size
 from idsplat_ns.instances.features.base import PointFeatures
 from idsplat_ns.instances.heading_flips import HeadingFlipConfig, canonical_box_centre, heading_errors, turn_about
 from idsplat_ns.instances.lifting import InstanceObservation, LiftedInstances
@@ -228,6 +228,19 @@ def motion_prior_pose(
     return T
 
 
+def _nearest_chunks(
+    canon_frames: list[int],  # the frame of each canonical chunk
+    times: np.ndarray,  # [F] seconds
+    frame: int,
+    count: int,
+    max_gap: float = np.inf,  # seconds
+) -> list[int]:
+    """Indices of the (up to) ``count`` chunks nearest to ``frame`` in time, nearest first (ties in
+    chunk order), leaving out those further than ``max_gap``."""
+    gaps = np.abs(times[np.asarray(canon_frames)] - times[frame])
+    return [int(k) for k in np.argsort(gaps, kind="stable")[:count] if gaps[k] <= max_gap]
+
+
 def _register_chain(
     observations: list[InstanceObservation],
     poses: np.ndarray,  # [F, 4, 4] (updated through ``accept``)
@@ -248,11 +261,10 @@ def _register_chain(
         pending = [o for o in observations if not valid[o.frame]]
         candidates = []
         for o in pending:
-            gaps = np.abs(times[np.asarray(canon_frames)] - times[o.frame])
-            near = [k for k in np.argsort(gaps, kind="stable")[: config.chain_neighbours] if gaps[k] <= config.chain_max_gap]
+            near = _nearest_chunks(canon_frames, times, o.frame, config.chain_neighbours, config.chain_max_gap)
             key = (o.frame, tuple(sorted(canon_frames[k] for k in near)))
             if near and key not in tried:
-                candidates.append((float(gaps[near[0]]), o, near, key))
+                candidates.append((float(abs(times[canon_frames[near[0]]] - times[o.frame])), o, near, key))
         if not candidates:
             return
         succeeded = False
@@ -354,8 +366,7 @@ def _coast_ends(
                 break
             if abs(times[f] - times[start]) > config.chain_max_gap:
                 break
-            gaps = np.abs(times[np.asarray(canon_frames)] - times[f])
-            near = np.argsort(gaps, kind="stable")[: config.chain_neighbours]
+            near = _nearest_chunks(canon_frames, times, f, config.chain_neighbours)
             source = np.concatenate([canon_pts[j] for j in near])
             prediction = predicted_pose(poses, canon_frames, times, f)
             fit = registration_fitness(prediction, source, o.points, reg.inlier_distance)
@@ -386,9 +397,7 @@ def _turn_centre(
     forward = travel_direction(poses, mask)
     if forward is None:
         return fallback
-    k = np.asarray(sorted(frames))
-    R, t = poses[k, :3, :3], poses[k, :3, 3]
-    sensors = np.einsum("kji,kj->ki", R, np.asarray(sensor_positions, np.float64)[k] - t)  # world -> canonical
+    sensors = sensors_in_canonical(poses, sensor_positions, np.asarray(sorted(frames)))
     return amodal_centre(reference, forward, sensors, size[0], size[1])
 
 
@@ -403,8 +412,7 @@ def estimate_trajectories(
     tracks = []
     items = sorted(lifted.observations.items())
     times = np.asarray(scene.frame_times, np.float64)
-    sweeps = getattr(scene, "lidar", None)
-    sensors = np.stack([sweep.sensor_to_world[:3, 3] for sweep in sweeps]) if sweeps else None  # [F, 3]
+    sensors = scene.lidar_positions() if getattr(scene, "lidar", None) else None  # [F, 3]
     next_id = max((iid for iid, _ in items), default=0) + 1
     split_from: dict[int, int] = {}
     for iid, obs in tqdm(items, desc="registration", disable=not progress):

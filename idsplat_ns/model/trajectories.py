@@ -141,6 +141,11 @@ def _fill_gaps(times: np.ndarray, poses: np.ndarray, valid: np.ndarray) -> tuple
     return filled, int(good[0]), int(good[-1])
 
 
+def default_span_margin(frame_times: np.ndarray) -> float:  # frame_times: [F] seconds
+    """Half the median step: how far past its first and last step an instance stays present."""
+    return 0.5 * float(np.median(np.diff(frame_times))) if len(frame_times) > 1 else 0.0
+
+
 class InstanceTrajectories(nn.Module):
     """Per-instance, per-step rigid poses (canonical -> world), learnable, interpolated in time."""
 
@@ -171,7 +176,7 @@ class InstanceTrajectories(nn.Module):
         if np.any(ids < 1) or len(np.unique(ids)) != Z:
             raise ValueError("InstanceTrajectories: instance ids must be unique and >= 1 (0 is the background)")
         if span_margin is None:
-            span_margin = 0.5 * float(np.median(np.diff(frame_times))) if F > 1 else 0.0
+            span_margin = default_span_margin(frame_times)
         filled = np.empty((Z, F, 4, 4))
         first = np.full(Z, -1, dtype=np.int64)
         last = np.full(Z, -1, dtype=np.int64)
@@ -207,14 +212,14 @@ class InstanceTrajectories(nn.Module):
         """Trajectories of the given sizes whose values a checkpoint's state dict replaces (ns-eval
         and the viewer: a checkpoint, not today's preprocessing, says what the instances are).
         Call :meth:`reset_span_margin` after loading."""
-        return cls(np.arange(max(num_steps, 1), dtype=np.float64), np.arange(1, num_instances + 1),
-                   np.tile(np.eye(4), (num_instances, max(num_steps, 1), 1, 1)),
-                   np.ones((num_instances, max(num_steps, 1)), bool), refine=refine, dtype=dtype)
+        F = max(num_steps, 1)
+        return cls(np.arange(F, dtype=np.float64), np.arange(1, num_instances + 1),
+                   np.tile(np.eye(4), (num_instances, F, 1, 1)), np.ones((num_instances, F), bool),
+                   refine=refine, dtype=dtype)
 
     def reset_span_margin(self) -> None:
         """The default presence margin (half the median step) for the current ``frame_times``."""
-        ft = self.frame_times.detach().cpu().double().numpy()
-        self.span_margin = 0.5 * float(np.median(np.diff(ft))) if len(ft) > 1 else 0.0
+        self.span_margin = default_span_margin(self.frame_times.detach().cpu().double().numpy())
 
     # -- sizes and parameter groups ----------------------------------------------------------
 
