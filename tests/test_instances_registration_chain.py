@@ -14,6 +14,7 @@ from idsplat_ns.instances.features.base import PointFeatures
 from idsplat_ns.instances.heading_flips import HeadingFlipConfig
 from idsplat_ns.instances.lifting import InstanceObservation, LiftedInstances
 from idsplat_ns.instances.registration import RegistrationConfig, registration_fitness
+from idsplat_ns.instances.segment_linking import SegmentLinkConfig
 from idsplat_ns.instances.trajectory_estimation import (
     TrajectoryConfig, estimate_trajectories, motion_outliers, motion_prior_pose,
 )
@@ -66,6 +67,25 @@ def test_unreached_frames_become_their_own_instance():
     assert [t.instance_id for t in single.instances] == [5] and single.instances[0].valid.sum() == 5
 
 
+def test_unreached_frames_are_linked_back_through_the_box_when_the_sensors_are_known():
+    scene, lifted, features = _front_then_rear()
+    # The lidar ahead of the car while it shows its front, behind it while it shows its rear.
+    sensors = np.array([[40.0, 2.0, 1.8]] * 5 + [[-10.0, 2.0, 1.8]] * 5)
+    with_lidar = SimpleNamespace(**vars(scene), lidar=[None] * 10, lidar_positions=lambda: sensors)
+    tracks = estimate_trajectories(with_lidar, lifted, features, TrajectoryConfig(), progress=False)
+    assert [t.instance_id for t in tracks.instances] == [5]
+    assert tracks.metadata["linked_segments"] == {"5": [5]} and tracks.metadata["split_from"] == {}
+    track = tracks.instances[0]
+    assert track.valid.all()
+    # One canonical frame for both halves: the car moves 1.6 m per frame, across the link too.
+    steps = np.linalg.norm(np.diff(track.poses[:, :3, 3], axis=0), axis=1)
+    np.testing.assert_allclose(steps, 1.6, atol=0.1)
+    # Switched off: two instances, as without the sensors.
+    apart = estimate_trajectories(with_lidar, lifted, features,
+                                  TrajectoryConfig(link_segments=SegmentLinkConfig(enabled=False)), progress=False)
+    assert [t.instance_id for t in apart.instances] == [5, 6]
+
+
 def _straight_track(num: int = 10, dt: float = 0.2, speed: float = 8.0) -> tuple[np.ndarray, np.ndarray]:
     t = np.arange(num) * dt
     poses = make_pose(rot_z(np.zeros(num)), np.c_[10.0 + speed * t, np.full(num, 2.0), np.full(num, 0.75)])
@@ -104,8 +124,8 @@ def test_a_slid_first_pass_registration_is_redone_from_the_motion(monkeypatch):
     lifted, features = LiftedInstances({5: "car"}, {5: obs}), PointFeatures("test", feats, {})
     real_register = te.register
 
-    def sliding_register(source, source_feat, target, target_feat, config):
-        result = real_register(source, source_feat, target, target_feat, config)
+    def sliding_register(source, source_feat, target, target_feat, config, *sensors):
+        result = real_register(source, source_feat, target, target_feat, config, *sensors)
         if np.array_equal(target, obs[0].points):  # frame 0's points: slide the result
             slid = result.transform.copy()
             slid[0, 3] += 3.5
@@ -162,8 +182,8 @@ def _slide(monkeypatch, obs, frames: set[int], metres: float = 2.0) -> None:
     def is_slid(target):
         return any(len(target) == len(p) and np.array_equal(target, p) for p in slid_targets)
 
-    def register(source, source_feat, target, target_feat, config):
-        result = real_register(source, source_feat, target, target_feat, config)
+    def register(source, source_feat, target, target_feat, config, *sensors):
+        result = real_register(source, source_feat, target, target_feat, config, *sensors)
         if not is_slid(target):
             return result
         moved = result.transform.copy()

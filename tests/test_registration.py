@@ -8,6 +8,8 @@ from scipy.spatial.transform import Rotation
 
 from idsplat_ns.instances.registration import (
     RegistrationConfig,
+    Visibility,
+    facing_normals,
     match_features,
     register,
     registration_fitness,
@@ -175,3 +177,62 @@ def test_point_to_plane_icp_does_not_depend_on_where_the_world_origin_is(distanc
         moved[d] = src @ T[:3, :3].T + T[:3, 3] - offset
     assert np.max(np.abs(moved[distance] - moved[0.0])) < 1e-3
     assert np.max(np.abs(moved[0.0] - src)) < 0.1  # and near the origin it converges
+
+
+def _wall(rng: np.random.Generator, n: int = 600) -> np.ndarray:  # -> [n, 3]: the plane y = 0, 4 m x 1.5 m
+    return np.stack([rng.uniform(-2, 2, n), np.zeros(n), rng.uniform(0, 1.5, n)], 1)
+
+
+def _wall_grid() -> np.ndarray:  # -> [41 * 16, 3]: the same plane on a 10 cm grid, symmetric in x
+    x, z = np.meshgrid(np.linspace(-2, 2, 41), np.linspace(0, 1.5, 16))
+    return np.stack([x.ravel(), np.zeros(x.size), z.ravel()], 1)
+
+
+def test_facing_normals_turn_towards_the_sensor_and_lines_have_none():
+    rng = np.random.default_rng(0)
+    wall = _wall(rng)
+    for side in (-1.0, 1.0):
+        sensors = np.tile([0.0, 10.0 * side, 1.0], (len(wall), 1))
+        n = facing_normals(wall, sensors)
+        found = np.any(n != 0.0, axis=1)  # a few random neighbourhoods are too elongated to tell
+        assert found.mean() > 0.95
+        assert np.all(np.abs(n[found, 1] - side) < 1e-6)  # unit normals along y, towards the sensor
+    line = np.stack([np.linspace(-2, 2, 50), np.zeros(50), np.zeros(50)], 1)  # one scan line
+    assert np.all(facing_normals(line, np.tile([0.0, -10.0, 0.0], (50, 1))) == 0.0)
+
+
+def test_back_face_test_rejects_a_surface_seen_from_its_other_side():
+    # The right side of a car (seen from y < 0) and its left side seen from y > 0 coincide once one is
+    # slid onto the other: distance alone calls that a perfect fit.
+    source = _wall_grid()
+    target = source + [0.02, 0.0, 0.01]
+    seen_from = np.tile([0.0, -10.0, 1.0], (len(source), 1))
+    assert registration_fitness(np.eye(4), source, target, 0.1) > 0.95
+    other_side = Visibility.of(source, seen_from, np.array([3.0, 10.0, 1.0]), 0.2)
+    same_side = Visibility.of(source, seen_from, np.array([-3.0, -8.0, 1.0]), 0.2)
+    assert registration_fitness(np.eye(4), source, target, 0.1, other_side) < 0.05
+    assert registration_fitness(np.eye(4), source, target, 0.1, same_side) > 0.95
+    # The normals turn with the transform: the source turned 180 deg about z faces the other side.
+    turned = _rigid([0.0, 0.0, np.pi], [0.0, 0.0, 0.0])
+    assert registration_fitness(turned, source, target, 0.1, other_side) > 0.95
+    assert Visibility.of(source, None, np.zeros(3), 0.2) is None
+    with pytest.raises(ValueError, match="source sensors"):
+        Visibility.of(source, seen_from[:10], np.zeros(3), 0.2)
+
+
+def test_register_with_sensors_refuses_the_other_side():
+    rng = np.random.default_rng(2)
+    source = _wall(rng)
+    target = source + [0.3, 0.0, 0.0]
+    feat = rng.normal(size=(len(source), 8))
+    seen_from = np.tile([0.0, -10.0, 1.0], (len(source), 1))
+    cfg = RegistrationConfig(max_iterations=2000)
+    plain = register(source, feat, target, feat, cfg)
+    assert plain.success and np.allclose(plain.transform[:3, 3], [0.3, 0.0, 0.0], atol=0.02)
+    same = register(source, feat, target, feat, cfg, seen_from, np.array([0.0, -10.0, 1.0]))
+    assert same.success and np.allclose(same.transform, plain.transform, atol=1e-6)
+    other = register(source, feat, target, feat, cfg, seen_from, np.array([0.0, 10.0, 1.0]))
+    assert not other.success and other.fitness < 0.05
+    off = register(source, feat, target, feat, RegistrationConfig(max_iterations=2000, back_face_tolerance=None),
+                   seen_from, np.array([0.0, 10.0, 1.0]))
+    assert off.success  # None: the paper's distance-only fitness

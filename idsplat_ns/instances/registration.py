@@ -53,6 +53,12 @@ class RegistrationConfig:
     (docs/instances.md). The refined pose is kept only when its fitness is not lower."""
     icp_distance: float = 0.2
     """Metres: the largest pair distance in the ICP refinement."""
+    back_face_tolerance: float | None = 0.2
+    """Ours, where the sensors are known: a target point is a fitness inlier only when the source
+    surface it lands on faces the target's sensor, up to this cosine past perpendicular (grazing
+    views). A lidar sees only surfaces that face it: a far car seen from its left registered onto
+    the right side of its canonical points (one car width off, at fitness 1.0), a flat side
+    matching a flat side. None: the paper's fitness (distance only)."""
     seed: int = 0
     """Random seed of sub-sampling and hypothesis sampling (registration is deterministic)."""
 
@@ -134,18 +140,81 @@ def _failure(reason: str, n_corr: int = 0, iterations: int = 0, fitness: float =
     return RegistrationResult(np.eye(4), fitness, False, n_corr, 0, iterations, reason)
 
 
+@dataclass(frozen=True)
+class Visibility:
+    """Where the sensors were, for the back-face test of :func:`registration_fitness`."""
+
+    source_normals: np.ndarray
+    """[N, 3] unit normals of the source points, facing the sensor that saw each (zero rows:
+    no reliable normal, the point is never rejected)."""
+    target_sensor: np.ndarray
+    """[3] the sensor that saw the target points, in the target's coordinates."""
+    tolerance: float
+    """Cosine past perpendicular still accepted (see ``RegistrationConfig.back_face_tolerance``)."""
+
+    @classmethod
+    def of(
+        cls,
+        source_xyz: np.ndarray,  # [N, 3]
+        source_sensors: np.ndarray | None,  # [N, 3] the sensor that saw each source point
+        target_sensor: np.ndarray | None,  # [3] the sensor that saw the target points
+        tolerance: float | None,
+    ) -> "Visibility | None":
+        """The test for these clouds, or None when a sensor or the tolerance is not given."""
+        if source_sensors is None or target_sensor is None or tolerance is None:
+            return None
+        sensors = np.asarray(source_sensors, dtype=np.float64).reshape(-1, 3)
+        if len(sensors) != len(source_xyz):
+            raise ValueError(f"source sensors ({len(sensors)}) differ from source points ({len(source_xyz)})")
+        return cls(facing_normals(np.asarray(source_xyz, np.float64), sensors),
+                   np.asarray(target_sensor, np.float64).reshape(3), float(tolerance))
+
+
+def facing_normals(
+    points: np.ndarray,  # [N, 3]
+    sensors: np.ndarray,  # [N, 3] the sensor that saw each point, same coordinates
+    k: int = 12,
+    max_flatness: float = 0.3,
+) -> np.ndarray:  # -> [N, 3]
+    """Unit normals (smallest principal axis of the k nearest neighbours) turned towards each
+    point's sensor; zero where the neighbourhood is not a surface: a line of points (one scan
+    line) has no normal, nor does a blob (smallest over middle eigenvalue above ``max_flatness``)."""
+    n = len(points)
+    if n < 3:
+        return np.zeros((n, 3))
+    k = min(k, n)
+    _, idx = cKDTree(points).query(points, k=k)
+    nb = points[idx] - points[idx].mean(1, keepdims=True)
+    _, eig, Vt = np.linalg.svd(np.einsum("nki,nkj->nij", nb, nb))  # eig descending
+    normals = Vt[:, 2].copy()
+    flip = np.einsum("ni,ni->n", normals, sensors - points) < 0
+    normals[flip] *= -1.0
+    surface = (eig[:, 1] > 0.05 * np.maximum(eig[:, 0], 1e-12)) & (eig[:, 2] <= max_flatness * eig[:, 1])
+    normals[~surface] = 0.0
+    return normals
+
+
 def registration_fitness(
     transform: np.ndarray,  # [4, 4]
     source_xyz: np.ndarray,  # [N, 3]
     target_xyz: np.ndarray,  # [M, 3]
     inlier_distance: float,
+    visibility: Visibility | None = None,
 ) -> float:
-    """Fraction of target points within ``inlier_distance`` of a transformed source point."""
+    """Fraction of target points within ``inlier_distance`` of a transformed source point (and,
+    with ``visibility``, landing on a source surface that faces the target's sensor)."""
     if len(target_xyz) == 0 or len(source_xyz) == 0:
         return 0.0
     moved = source_xyz @ transform[:3, :3].T + transform[:3, 3]
-    dist, _ = cKDTree(moved).query(target_xyz, k=1, distance_upper_bound=inlier_distance)
-    return float(np.mean(np.isfinite(dist)))
+    dist, idx = cKDTree(moved).query(target_xyz, k=1, distance_upper_bound=inlier_distance)
+    inlier = np.isfinite(dist)
+    if visibility is not None and inlier.any():
+        q = target_xyz[inlier]
+        n = visibility.source_normals[idx[inlier]] @ transform[:3, :3].T
+        ray = visibility.target_sensor - q
+        cos = np.einsum("ni,ni->n", n, ray) / np.maximum(np.linalg.norm(ray, axis=1), 1e-9)
+        inlier[np.flatnonzero(inlier)[cos < -visibility.tolerance]] = False
+    return float(np.mean(inlier))
 
 
 def estimate_normals(points: np.ndarray, k: int = 12) -> np.ndarray:  # points: [N, 3] -> [N, 3]
@@ -213,12 +282,17 @@ def register(
     target_xyz: np.ndarray,  # [M, 3]
     target_feat: np.ndarray,  # [M, D]
     config: RegistrationConfig = RegistrationConfig(),
+    source_sensors: np.ndarray | None = None,  # [N, 3] the sensor that saw each source point
+    target_sensor: np.ndarray | None = None,  # [3] the sensor that saw the target points
 ) -> RegistrationResult:
     """Estimate the rigid transform that maps the source cloud onto the target cloud.
 
     Degenerate input (empty clouds, fewer than ``min_correspondences`` matches, only collinear
     samples) returns ``success=False`` with the identity and a ``reason``; it never raises.
     Shapes that do not agree (features vs points, feature dimensions) raise ``ValueError``.
+    With both sensor arguments (same coordinates as their points) and
+    ``config.back_face_tolerance`` set, the fitness leaves out target points that land on source
+    surfaces facing away from the target's sensor.
     """
     source_xyz = np.asarray(source_xyz, dtype=np.float64).reshape(-1, 3)
     target_xyz = np.asarray(target_xyz, dtype=np.float64).reshape(-1, 3)
@@ -240,6 +314,10 @@ def register(
     si = _subsample(len(source_xyz), config.max_points, rng)
     ti = _subsample(len(target_xyz), config.max_points, rng)
     src, tgt = source_xyz[si], target_xyz[ti]
+    if source_sensors is not None and len(source_sensors) != len(source_xyz):
+        raise ValueError(f"source sensors ({len(source_sensors)}) differ from source points ({len(source_xyz)})")
+    visibility = Visibility.of(src, None if source_sensors is None else np.asarray(source_sensors)[si], target_sensor,
+                               config.back_face_tolerance)
     corr_s, corr_t = match_features(source_feat[si], target_feat[ti], config.similarity_threshold)
     n_corr = len(corr_s)
     if n_corr < max(3, config.min_correspondences):
@@ -291,14 +369,14 @@ def register(
                 break
             R2, t2 = umeyama_rigid(cs[inl][None], ct[inl][None])
             T = make_pose(R2[0], t2[0])
-        fit = registration_fitness(T, src, tgt, config.inlier_distance)
+        fit = registration_fitness(T, src, tgt, config.inlier_distance, visibility)
         if fit > best_fit:
             moved = cs @ T[:3, :3].T + T[:3, 3]
             best_fit, best_T = fit, T
             best_inl = int(np.sum(np.sum((moved - ct) ** 2, 1) < thr2))
     if config.icp_iterations > 0 and best_fit > 0:
         refined = icp_point_to_plane(best_T, src, tgt, config.icp_iterations, config.icp_distance)
-        fit = registration_fitness(refined, src, tgt, config.inlier_distance)
+        fit = registration_fitness(refined, src, tgt, config.inlier_distance, visibility)
         if fit >= best_fit:
             best_T, best_fit = refined, fit
     success = best_fit >= config.fitness_threshold

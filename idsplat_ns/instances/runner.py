@@ -38,7 +38,7 @@ LIFTING_FORMAT = 2
 # Bumped when the registration gives other results for the same settings, so that a cache made by
 # older code is not reused (2: ICP linearised about the pairs' centroid; 3: heading turns about the
 # amodal centre, parked instances not turned).
-REGISTRATION_VERSION = 3
+REGISTRATION_VERSION = 4
 
 
 @dataclass(frozen=True)

@@ -8,8 +8,10 @@ ablation (c): translation only, from the points' centroids.
 
 Ours, each with a switch in :class:`TrajectoryConfig` (docs/instances.md has the measurements):
 frames that fail are registered again against their nearest registered neighbours, gated by a
-constant-velocity prediction; half-turned registrations are turned back (heading_flips.py); and
-observations no registration reached become an instance of their own.
+constant-velocity prediction; half-turned registrations are turned back (heading_flips.py);
+points landing on surfaces that face away from the sensor are not inliers (registration.py); and
+observations no registration reached are registered among themselves and linked back through the
+vehicle's box (segment_linking.py), or become an instance of their own.
 """
 
 from __future__ import annotations
@@ -26,7 +28,14 @@ from idsplat_ns.instances.amodal_centre import amodal_centre, sensors_in_canonic
 from idsplat_ns.instances.features.base import PointFeatures
 from idsplat_ns.instances.heading_flips import HeadingFlipConfig, canonical_box_centre, heading_errors, turn_about
 from idsplat_ns.instances.lifting import InstanceObservation, LiftedInstances
-from idsplat_ns.instances.registration import RegistrationConfig, icp_point_to_plane, register, registration_fitness
+from idsplat_ns.instances.registration import (
+    RegistrationConfig,
+    Visibility,
+    icp_point_to_plane,
+    register,
+    registration_fitness,
+)
+from idsplat_ns.instances.segment_linking import SegmentLinkConfig, link_segment
 from idsplat_ns.instances.static_conversion import StaticConversionConfig, is_stationary
 from idsplat_ns.instances.tracks import InstanceTrack, InstanceTracks, fill_invalid_poses
 
@@ -74,6 +83,9 @@ class TrajectoryConfig:
     heading_flips: HeadingFlipConfig = field(default_factory=HeadingFlipConfig)
     """Registrations whose heading disagrees with the direction of travel (front/back flips,
     quarter turns), turned back (ours; see instances/heading_flips.py)."""
+    link_segments: SegmentLinkConfig = field(default_factory=SegmentLinkConfig)
+    """Split segments joined back to their instance through the vehicle's box (ours; see
+    instances/segment_linking.py). Needs the sensor positions (lidar sweeps)."""
 
 
 def _obs_features(features: PointFeatures, iid: int, obs: InstanceObservation) -> np.ndarray:
@@ -137,9 +149,16 @@ def estimate_instance_track(
             canon_cols.append(colours_of(o))
             canon_frames.append(o.frame)
 
+        def sensors_of(chunks: list[int]) -> Optional[np.ndarray]:  # -> [N, 3] canonical, per point
+            return _chunk_sensors(poses, canon_frames, canon_pts, chunks, sensor_positions)
+
+        def sensor_at(frame: int) -> Optional[np.ndarray]:  # -> [3] world
+            return None if sensor_positions is None else sensor_positions[frame]
+
         for o in order[1:]:
             result = register(np.concatenate(canon_pts), np.concatenate(canon_feat), o.points,
-                              _obs_features(features, fid, o), config.registration)
+                              _obs_features(features, fid, o), config.registration,
+                              sensors_of(list(range(len(canon_pts)))), sensor_at(o.frame))
             fitness[o.frame] = result.fitness
             if result.success:
                 accept(o, result.transform)
@@ -150,13 +169,13 @@ def estimate_instance_track(
                     del canon_pts[k], canon_feat[k], canon_cols[k], canon_frames[k]
                     valid[f] = False
             _register_chain(observations, poses, valid, fitness, canon_pts, canon_feat, canon_frames, times, config,
-                            lambda o: _obs_features(features, fid, o), accept)
+                            lambda o: _obs_features(features, fid, o), accept, sensors_of, sensor_at)
         if config.heading_flips.enabled and times is not None:
             by_frame = {o.frame: o for o in observations}
             _correct_headings(poses, valid, fitness, counts, canon_pts, canon_cols, canon_frames, by_frame, times, config,
                               label, sensor_positions)
         if config.chain_neighbours > 0 and config.coast_frames > 0 and times is not None:
-            _coast_ends(observations, poses, valid, fitness, canon_pts, canon_frames, times, config)
+            _coast_ends(observations, poses, valid, fitness, canon_pts, canon_frames, times, config, sensor_positions)
     colors = None if any(c is None for c in canon_cols) else np.concatenate(canon_cols)
     point_frames = np.concatenate([np.full(len(p), f, np.int32) for p, f in zip(canon_pts, canon_frames)])
     # Every chunk is its frame's whole observation, in order, so the ray times line up.
@@ -171,6 +190,22 @@ def estimate_instance_track(
         poses=fill_invalid_poses(poses, valid), valid=valid, point_counts=counts, fitness=fitness,
         canonical_frame=int(ref.frame), point_frames=point_frames, point_times=point_times,
     )
+
+
+def _chunk_sensors(
+    poses: np.ndarray,  # [F, 4, 4] canonical -> world
+    canon_frames: list[int],  # the frame of each canonical chunk
+    canon_pts: list[np.ndarray],  # the chunks
+    chunks: list[int],  # which chunks, in the order their points are concatenated
+    sensor_positions: Optional[np.ndarray],  # [F, 3] world
+) -> Optional[np.ndarray]:  # -> [N, 3] canonical
+    """The sensor that saw each point of ``chunks``, in the canonical frame (a chunk is its
+    frame's points mapped by that frame's pose, so the same pose maps its sensor)."""
+    if sensor_positions is None:
+        return None
+    frames = np.asarray([canon_frames[k] for k in chunks], dtype=np.int64)
+    local = sensors_in_canonical(poses, sensor_positions, frames)  # [K, 3]
+    return np.repeat(local, [len(canon_pts[k]) for k in chunks], axis=0)
 
 
 def predicted_pose(
@@ -253,6 +288,8 @@ def _register_chain(
     config: TrajectoryConfig,
     features_of,
     accept,
+    sensors_of=lambda chunks: None,
+    sensor_at=lambda frame: None,
 ) -> None:
     """Register failed frames against their nearest registered neighbours' canonical points,
     nearest-in-time first, until no more succeed (see ``TrajectoryConfig.chain_neighbours``)."""
@@ -271,13 +308,15 @@ def _register_chain(
         for _, o, near, key in sorted(candidates, key=lambda c: (c[0], c[1].frame)):
             tried.add(key)
             source = np.concatenate([canon_pts[k] for k in near])
+            source_sensors = sensors_of(near)
             result = register(source, np.concatenate([canon_feat[k] for k in near]), o.points, features_of(o),
-                              config.registration)
+                              config.registration, source_sensors, sensor_at(o.frame))
             # Feature matches of a far car are weak: also start from the motion's prediction, and
             # accept only poses near it (a box registered to part of itself can slide metres).
             prediction = predicted_pose(poses, canon_frames, times, o.frame)
             prior = motion_prior_pose(prediction, source, o.points, config.registration)
-            prior_fit = registration_fitness(prior, source, o.points, config.registration.inlier_distance)
+            visibility = Visibility.of(source, source_sensors, sensor_at(o.frame), config.registration.back_face_tolerance)
+            prior_fit = registration_fitness(prior, source, o.points, config.registration.inlier_distance, visibility)
             fitness[o.frame] = max(fitness[o.frame], result.fitness, prior_fit)
             transform, fit = None, 0.0
             for candidate, score in ((result.transform, result.fitness if result.success else 0.0), (prior, prior_fit)):
@@ -321,6 +360,7 @@ def _correct_headings(
         return
     keep = [k for k, f in enumerate(canon_frames) if not wrong[f]]
     reference = np.concatenate([canon_pts[k] for k in keep])
+    reference_sensors = _chunk_sensors(poses, canon_frames, canon_pts, keep, sensor_positions)
     centre = _turn_centre(reference, poses, [canon_frames[k] for k in keep], label, sensor_positions)
     reg = config.registration
     for k, f in enumerate(canon_frames):
@@ -329,7 +369,9 @@ def _correct_headings(
         target = by_frame[f].points
         turned = turn_about(poses[f], centre, float(error[f]))
         refined = icp_point_to_plane(turned, reference, target, reg.icp_iterations, reg.icp_distance)
-        fit = registration_fitness(refined, reference, target, reg.inlier_distance)
+        sensor = None if sensor_positions is None else sensor_positions[f]
+        visibility = Visibility.of(reference, reference_sensors, sensor, reg.back_face_tolerance)
+        fit = registration_fitness(refined, reference, target, reg.inlier_distance, visibility)
         if fit >= reg.fitness_threshold:
             poses[f], fitness[f] = refined, fit
             canon_pts[k] = transform_points(invert_pose(refined), target)
@@ -349,6 +391,7 @@ def _coast_ends(
     canon_frames: list[int],  # the frame of each chunk
     times: np.ndarray,  # [F] seconds
     config: TrajectoryConfig,
+    sensor_positions: Optional[np.ndarray] = None,  # [F, 3] world
 ) -> None:
     """Give the observed frames just past the registered ones the constant-velocity prediction
     where their points fit it (see ``TrajectoryConfig.coast_frames``). Predictions come from the
@@ -369,7 +412,9 @@ def _coast_ends(
             near = _nearest_chunks(canon_frames, times, f, config.chain_neighbours)
             source = np.concatenate([canon_pts[j] for j in near])
             prediction = predicted_pose(poses, canon_frames, times, f)
-            fit = registration_fitness(prediction, source, o.points, reg.inlier_distance)
+            visibility = Visibility.of(source, _chunk_sensors(poses, canon_frames, canon_pts, near, sensor_positions),
+                                       None if sensor_positions is None else sensor_positions[f], reg.back_face_tolerance)
+            fit = registration_fitness(prediction, source, o.points, reg.inlier_distance, visibility)
             fitness[f] = max(fitness[f], fit)
             if fit < reg.fitness_threshold:
                 break
@@ -415,24 +460,35 @@ def estimate_trajectories(
     sensors = scene.lidar_positions() if getattr(scene, "lidar", None) else None  # [F, 3]
     next_id = max((iid for iid, _ in items), default=0) + 1
     split_from: dict[int, int] = {}
+    linked_into: dict[str, list[int]] = {}  # instance -> frames of each segment linked back into it
     for iid, obs in tqdm(items, desc="registration", disable=not progress):
         if not obs or max(len(o.points) for o in obs) < config.min_points:
             continue
         track = estimate_instance_track(iid, lifted.labels[iid], obs, features, scene.num_frames, config, times,
                                         sensor_positions=sensors)
-        tracks.append(track)
+        segments = []
         rest = [o for o in obs if not track.valid[o.frame]]
         # Frames no registration reached may still agree among themselves (a car seen from the
-        # front, then only from behind): they become an instance of their own.
+        # front, then only from behind): they are linked back through the vehicle's box, or
+        # become an instance of their own.
         while config.method == "registration" and config.min_segment_frames > 0 and len(rest) >= config.min_segment_frames:
             segment = estimate_instance_track(next_id, lifted.labels[iid], rest, features, scene.num_frames, config,
                                               times, source_id=iid, sensor_positions=sensors)
             if segment.num_valid < config.min_segment_frames:
                 break
-            tracks.append(segment)
+            rest = [o for o in rest if not segment.valid[o.frame]]
+            linked = None
+            if config.link_segments.enabled and sensors is not None:
+                linked = link_segment(track, segment, sensors, times, config.link_segments)
+            if linked is not None:
+                track = linked
+                linked_into.setdefault(str(iid), []).append(int(segment.num_valid))
+                continue
+            segments.append(segment)
             split_from[next_id] = iid
             next_id += 1
-            rest = [o for o in rest if not segment.valid[o.frame]]
+        tracks.append(track)
+        tracks.extend(segments)
     meta = {"trajectory_method": config.method, "features": None if features is None else features.extractor,
-            "split_from": {str(k): v for k, v in split_from.items()}}
+            "split_from": {str(k): v for k, v in split_from.items()}, "linked_segments": linked_into}
     return InstanceTracks(np.asarray(scene.frame_indices), np.asarray(scene.frame_times, np.float64), tracks, [], meta)
