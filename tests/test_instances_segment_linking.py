@@ -129,3 +129,23 @@ def test_segments_that_cannot_be_the_same_vehicle_stay_apart():
     assert link_segment(_part([4, 6, 9, 10], TO_NEAR), interleaved, _sensors(), TIMES) is None
     assert link_segment(near, far, _sensors(), TIMES, SegmentLinkConfig(max_gap=0.5)) is None  # 1.2 s apart
     assert link_segment(near, replace(far, label="traffic cone"), _sensors(), TIMES) is None
+
+
+def test_a_lone_misregistered_frame_inside_the_other_part_is_dropped_to_link():
+    # The near part also holds far frame 3, registered a quarter turn and 2.7 m off (seed 0's
+    # turning pickup): the parts overlap in time only through that frame.
+    near = _part([3, 9, 10, 11, 12, 13], TO_NEAR)
+    wrong = near.poses.copy()
+    wrong[3] = near.poses[3] @ make_pose(rot_z(np.pi / 2), np.array([2.7, 0.0, 0.0]))
+    near = replace(near, poses=wrong)
+    far = _part([0, 1, 2, 4, 5], TO_FAR)
+    linked = link_segment(near, far, _sensors(), TIMES)
+    assert linked is not None
+    assert not linked.valid[3] and linked.valid[[0, 1, 2, 4, 5, 9]].all()
+    assert 3 not in set(linked.point_frames.tolist())  # its points left with it
+    box = _box_poses()
+    for f in (0, 1, 2, 4, 5):
+        assert np.linalg.norm(linked.poses[f][:2, 3] - (box[f] @ invert_pose(TO_NEAR))[:2, 3]) < 0.4
+    assert link_segment(near, far, _sensors(), TIMES, SegmentLinkConfig(max_intruders=0)) is None
+    two = _part([3, 4, 9, 10, 11, 12, 13], TO_NEAR)
+    assert link_segment(two, _part([0, 1, 2, 5, 6], TO_FAR), _sensors(), TIMES) is None  # two intruders
