@@ -148,4 +148,6 @@ def test_a_lone_misregistered_frame_inside_the_other_part_is_dropped_to_link():
         assert np.linalg.norm(linked.poses[f][:2, 3] - (box[f] @ invert_pose(TO_NEAR))[:2, 3]) < 0.4
     assert link_segment(near, far, _sensors(), TIMES, SegmentLinkConfig(max_intruders=0)) is None
     two = _part([3, 4, 9, 10, 11, 12, 13], TO_NEAR)
-    assert link_segment(two, _part([0, 1, 2, 5, 6], TO_FAR), _sensors(), TIMES) is None  # two intruders
+    assert link_segment(two, _part([0, 1, 2, 5, 6], TO_FAR), _sensors(), TIMES) is not None  # up to 3 by default
+    assert link_segment(two, _part([0, 1, 2, 5, 6], TO_FAR), _sensors(), TIMES,
+                        SegmentLinkConfig(max_intruders=1)) is None  # two intruders

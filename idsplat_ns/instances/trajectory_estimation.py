@@ -315,7 +315,8 @@ def _register_chain(
             # accept only poses near it (a box registered to part of itself can slide metres).
             prediction = predicted_pose(poses, canon_frames, times, o.frame)
             prior = motion_prior_pose(prediction, source, o.points, config.registration)
-            visibility = Visibility.of(source, source_sensors, sensor_at(o.frame), config.registration.back_face_tolerance)
+            visibility = Visibility.of(source, source_sensors, sensor_at(o.frame),
+                                       config.registration.back_face_tolerance)
             prior_fit = registration_fitness(prior, source, o.points, config.registration.inlier_distance, visibility)
             fitness[o.frame] = max(fitness[o.frame], result.fitness, prior_fit)
             transform, fit = None, 0.0
