@@ -151,3 +151,14 @@ def test_a_lone_misregistered_frame_inside_the_other_part_is_dropped_to_link():
     assert link_segment(two, _part([0, 1, 2, 5, 6], TO_FAR), _sensors(), TIMES) is not None  # up to 3 by default
     assert link_segment(two, _part([0, 1, 2, 5, 6], TO_FAR), _sensors(), TIMES,
                         SegmentLinkConfig(max_intruders=1)) is None  # two intruders
+
+
+def test_bad_link_settings_are_one_line_errors():
+    import pytest
+
+    from idsplat_ns.errors import IDSplatError
+
+    with pytest.raises(IDSplatError, match="speed-ratio must be >= 1"):
+        SegmentLinkConfig(speed_ratio=0.0)
+    with pytest.raises(IDSplatError, match="max-intruders must be >= 0"):
+        SegmentLinkConfig(max_intruders=-1)

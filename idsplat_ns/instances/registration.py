@@ -56,9 +56,9 @@ class RegistrationConfig:
     back_face_tolerance: float | None = 0.2
     """Ours, where the sensors are known: a target point is a fitness inlier only when the source
     surface it lands on faces the target's sensor, up to this cosine past perpendicular (grazing
-    views). A lidar sees only surfaces that face it: a far car seen from its left registered onto
-    the right side of its canonical points (one car width off, at fitness 1.0), a flat side
-    matching a flat side. None: the paper's fitness (distance only)."""
+    views; 1 accepts every surface). A lidar sees only surfaces that face it: a far car registered
+    one flat side onto the other (a car's width off, at fitness 1.0). None: the paper's fitness
+    (distance only)."""
     seed: int = 0
     """Random seed of sub-sampling and hypothesis sampling (registration is deterministic)."""
 

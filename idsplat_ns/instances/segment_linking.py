@@ -24,6 +24,7 @@ from typing import Optional
 import numpy as np
 
 from idsplat_ns.data.geometry import invert_pose, transform_points
+from idsplat_ns.errors import IDSplatError
 from idsplat_ns.instances.amodal_centre import amodal_centre, sensors_in_canonical, travel_direction, typical_size
 from idsplat_ns.instances.tracks import InstanceTrack, fill_invalid_poses
 
@@ -46,6 +47,13 @@ class SegmentLinkConfig:
     part's consistent ones are the misregistered ones (seed 0: one far frame registered onto the
     near canonical points a quarter turn and 2.7 m off; seed 7: three far frames slid 1.2 m along
     the car, between seven of the segment's within 0.4 m). More than this many: no link."""
+
+    def __post_init__(self) -> None:
+        if self.speed_ratio < 1.0:
+            raise IDSplatError(f"link-segments.speed-ratio must be >= 1 (a factor either way), got {self.speed_ratio}")
+        if self.max_gap < 0 or self.speed_slack < 0 or self.max_intruders < 0:
+            raise IDSplatError("link-segments.max-gap, speed-slack and max-intruders must be >= 0; "
+                               f"got {self.max_gap}, {self.speed_slack}, {self.max_intruders}")
 
 
 def box_frame(
