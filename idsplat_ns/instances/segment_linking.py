@@ -45,8 +45,8 @@ class SegmentLinkConfig:
     """Frames of one part inside the other part's time span (the parts then interleave) that are
     dropped to link them, from the part that needs fewer dropped: a few frames among the other
     part's consistent ones are the misregistered ones (seed 0: one far frame registered onto the
-    near canonical points a quarter turn and 2.7 m off; seed 7: three far frames slid 1.2 m along
-    the car, between seven of the segment's within 0.4 m). More than this many: no link."""
+    near canonical points a quarter turn and 2.7 m off; seed 7: three far frames 1.2 m off with the
+    right rotation, between seven of the segment's within 0.4 m). More than this many: no link."""
 
     def __post_init__(self) -> None:
         if self.speed_ratio < 1.0:
