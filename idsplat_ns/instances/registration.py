@@ -182,10 +182,7 @@ def facing_normals(
     n = len(points)
     if n < 3:
         return np.zeros((n, 3))
-    k = min(k, n)
-    _, idx = cKDTree(points).query(points, k=k)
-    nb = points[idx] - points[idx].mean(1, keepdims=True)
-    _, eig, Vt = np.linalg.svd(np.einsum("nki,nkj->nij", nb, nb))  # eig descending
+    eig, Vt = _local_pca(points, k)
     normals = Vt[:, 2].copy()
     flip = np.einsum("ni,ni->n", normals, sensors - points) < 0
     normals[flip] *= -1.0
@@ -217,13 +214,17 @@ def registration_fitness(
     return float(np.mean(inlier))
 
 
+def _local_pca(points: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:  # [N, 3] -> [N, 3], [N, 3, 3]
+    """Principal axes of each point's k nearest neighbours: eigenvalues (descending) and axes (rows)."""
+    _, idx = cKDTree(points).query(points, k=min(k, len(points)))
+    nb = points[idx] - points[idx].mean(1, keepdims=True)
+    _, eig, Vt = np.linalg.svd(np.einsum("nki,nkj->nij", nb, nb))
+    return eig, Vt
+
+
 def estimate_normals(points: np.ndarray, k: int = 12) -> np.ndarray:  # points: [N, 3] -> [N, 3]
     """Unit normals from the smallest principal axis of each point's k nearest neighbours."""
-    k = min(k, len(points))
-    _, idx = cKDTree(points).query(points, k=k)
-    nb = points[idx] - points[idx].mean(1, keepdims=True)
-    _, _, Vt = np.linalg.svd(np.einsum("nki,nkj->nij", nb, nb))
-    return Vt[:, 2]
+    return _local_pca(points, k)[1][:, 2]
 
 
 def icp_point_to_plane(

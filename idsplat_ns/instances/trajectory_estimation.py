@@ -16,7 +16,8 @@ vehicle's box (segment_linking.py), or become an instance of their own.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from collections.abc import Iterable
+from dataclasses import dataclass, field, replace
 from typing import Literal, Optional
 
 import numpy as np
@@ -149,16 +150,11 @@ def estimate_instance_track(
             canon_cols.append(colours_of(o))
             canon_frames.append(o.frame)
 
-        def sensors_of(chunks: list[int]) -> Optional[np.ndarray]:  # -> [N, 3] canonical, per point
-            return _chunk_sensors(poses, canon_frames, canon_pts, chunks, sensor_positions)
-
-        def sensor_at(frame: int) -> Optional[np.ndarray]:  # -> [3] world
-            return None if sensor_positions is None else sensor_positions[frame]
-
         for o in order[1:]:
             result = register(np.concatenate(canon_pts), np.concatenate(canon_feat), o.points,
                               _obs_features(features, fid, o), config.registration,
-                              sensors_of(list(range(len(canon_pts)))), sensor_at(o.frame))
+                              _chunk_sensors(poses, canon_frames, canon_pts, range(len(canon_pts)), sensor_positions),
+                              _sensor_at(sensor_positions, o.frame))
             fitness[o.frame] = result.fitness
             if result.success:
                 accept(o, result.transform)
@@ -169,7 +165,7 @@ def estimate_instance_track(
                     del canon_pts[k], canon_feat[k], canon_cols[k], canon_frames[k]
                     valid[f] = False
             _register_chain(observations, poses, valid, fitness, canon_pts, canon_feat, canon_frames, times, config,
-                            lambda o: _obs_features(features, fid, o), accept, sensors_of, sensor_at)
+                            lambda o: _obs_features(features, fid, o), accept, sensor_positions)
         if config.heading_flips.enabled and times is not None:
             by_frame = {o.frame: o for o in observations}
             _correct_headings(poses, valid, fitness, counts, canon_pts, canon_cols, canon_frames, by_frame, times, config,
@@ -196,16 +192,21 @@ def _chunk_sensors(
     poses: np.ndarray,  # [F, 4, 4] canonical -> world
     canon_frames: list[int],  # the frame of each canonical chunk
     canon_pts: list[np.ndarray],  # the chunks
-    chunks: list[int],  # which chunks, in the order their points are concatenated
+    chunks: Iterable[int],  # which chunks, in the order their points are concatenated
     sensor_positions: Optional[np.ndarray],  # [F, 3] world
 ) -> Optional[np.ndarray]:  # -> [N, 3] canonical
     """The sensor that saw each point of ``chunks``, in the canonical frame (a chunk is its
     frame's points mapped by that frame's pose, so the same pose maps its sensor)."""
     if sensor_positions is None:
         return None
+    chunks = list(chunks)
     frames = np.asarray([canon_frames[k] for k in chunks], dtype=np.int64)
     local = sensors_in_canonical(poses, sensor_positions, frames)  # [K, 3]
     return np.repeat(local, [len(canon_pts[k]) for k in chunks], axis=0)
+
+
+def _sensor_at(sensor_positions: Optional[np.ndarray], frame: int) -> Optional[np.ndarray]:  # -> [3] world
+    return None if sensor_positions is None else sensor_positions[frame]
 
 
 def predicted_pose(
@@ -288,8 +289,7 @@ def _register_chain(
     config: TrajectoryConfig,
     features_of,
     accept,
-    sensors_of=lambda chunks: None,
-    sensor_at=lambda frame: None,
+    sensor_positions: Optional[np.ndarray] = None,  # [F, 3] world
 ) -> None:
     """Register failed frames against their nearest registered neighbours' canonical points,
     nearest-in-time first, until no more succeed (see ``TrajectoryConfig.chain_neighbours``)."""
@@ -308,15 +308,15 @@ def _register_chain(
         for _, o, near, key in sorted(candidates, key=lambda c: (c[0], c[1].frame)):
             tried.add(key)
             source = np.concatenate([canon_pts[k] for k in near])
-            source_sensors = sensors_of(near)
+            source_sensors = _chunk_sensors(poses, canon_frames, canon_pts, near, sensor_positions)
+            sensor = _sensor_at(sensor_positions, o.frame)
             result = register(source, np.concatenate([canon_feat[k] for k in near]), o.points, features_of(o),
-                              config.registration, source_sensors, sensor_at(o.frame))
+                              config.registration, source_sensors, sensor)
             # Feature matches of a far car are weak: also start from the motion's prediction, and
             # accept only poses near it (a box registered to part of itself can slide metres).
             prediction = predicted_pose(poses, canon_frames, times, o.frame)
             prior = motion_prior_pose(prediction, source, o.points, config.registration)
-            visibility = Visibility.of(source, source_sensors, sensor_at(o.frame),
-                                       config.registration.back_face_tolerance)
+            visibility = Visibility.of(source, source_sensors, sensor, config.registration.back_face_tolerance)
             prior_fit = registration_fitness(prior, source, o.points, config.registration.inlier_distance, visibility)
             fitness[o.frame] = max(fitness[o.frame], result.fitness, prior_fit)
             transform, fit = None, 0.0
@@ -361,7 +361,9 @@ def _correct_headings(
         return
     keep = [k for k, f in enumerate(canon_frames) if not wrong[f]]
     reference = np.concatenate([canon_pts[k] for k in keep])
-    reference_sensors = _chunk_sensors(poses, canon_frames, canon_pts, keep, sensor_positions)
+    # The reference's normals once; each turned frame is seen from its own sensor.
+    visibility = Visibility.of(reference, _chunk_sensors(poses, canon_frames, canon_pts, keep, sensor_positions),
+                               np.zeros(3), config.registration.back_face_tolerance)
     centre = _turn_centre(reference, poses, [canon_frames[k] for k in keep], label, sensor_positions)
     reg = config.registration
     for k, f in enumerate(canon_frames):
@@ -370,9 +372,8 @@ def _correct_headings(
         target = by_frame[f].points
         turned = turn_about(poses[f], centre, float(error[f]))
         refined = icp_point_to_plane(turned, reference, target, reg.icp_iterations, reg.icp_distance)
-        sensor = None if sensor_positions is None else sensor_positions[f]
-        visibility = Visibility.of(reference, reference_sensors, sensor, reg.back_face_tolerance)
-        fit = registration_fitness(refined, reference, target, reg.inlier_distance, visibility)
+        seen_from = None if visibility is None else replace(visibility, target_sensor=sensor_positions[f])
+        fit = registration_fitness(refined, reference, target, reg.inlier_distance, seen_from)
         if fit >= reg.fitness_threshold:
             poses[f], fitness[f] = refined, fit
             canon_pts[k] = transform_points(invert_pose(refined), target)
@@ -414,7 +415,7 @@ def _coast_ends(
             source = np.concatenate([canon_pts[j] for j in near])
             prediction = predicted_pose(poses, canon_frames, times, f)
             visibility = Visibility.of(source, _chunk_sensors(poses, canon_frames, canon_pts, near, sensor_positions),
-                                       None if sensor_positions is None else sensor_positions[f], reg.back_face_tolerance)
+                                       _sensor_at(sensor_positions, f), reg.back_face_tolerance)
             fit = registration_fitness(prediction, source, o.points, reg.inlier_distance, visibility)
             fitness[f] = max(fitness[f], fit)
             if fit < reg.fitness_threshold:

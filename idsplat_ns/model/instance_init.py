@@ -31,6 +31,7 @@ from idsplat_ns.model.initialisation import (
     initial_points_from_scene,
     knn_scales,
 )
+from idsplat_ns.model.trajectories import default_span_margin
 
 
 @dataclass
@@ -57,10 +58,6 @@ class InstanceInitialPoints(InitialPoints):
     instance_ids: np.ndarray  # [N] int64
 
 
-def _default_span_margin(frame_times: np.ndarray) -> float:
-    return 0.5 * float(np.median(np.diff(frame_times))) if len(frame_times) > 1 else 0.0
-
-
 def instance_exclusion(
     tracks: InstanceTracks, box_margin: float = 0.3, span_margin: float | None = None
 ) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
@@ -72,7 +69,7 @@ def instance_exclusion(
     not exist and excludes nothing.
     """
     times_f = np.asarray(tracks.frame_times, dtype=np.float64)
-    margin_t = _default_span_margin(times_f) if span_margin is None else float(span_margin)
+    margin_t = default_span_margin(times_f) if span_margin is None else float(span_margin)
     boxes = []
     for inst in tracks.instances:
         good = np.flatnonzero(inst.valid)
