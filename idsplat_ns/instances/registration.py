@@ -170,24 +170,33 @@ class Visibility:
                    np.asarray(target_sensor, np.float64).reshape(3), float(tolerance))
 
 
+def surface_normals(
+    points: np.ndarray,  # [N, 3]
+    k: int = 12,
+    max_flatness: float = 0.3,
+) -> np.ndarray:  # -> [N, 3]
+    """Unit normals (smallest principal axis of the k nearest neighbours), unsigned; zero where the
+    neighbourhood is not a surface: a line of points (one scan line) has no normal, nor does a
+    blob (smallest over middle eigenvalue above ``max_flatness``)."""
+    if len(points) < 3:
+        return np.zeros((len(points), 3))
+    eig, Vt = _local_pca(points, k)
+    normals = Vt[:, 2].copy()
+    surface = (eig[:, 1] > 0.05 * np.maximum(eig[:, 0], 1e-12)) & (eig[:, 2] <= max_flatness * eig[:, 1])
+    normals[~surface] = 0.0
+    return normals
+
+
 def facing_normals(
     points: np.ndarray,  # [N, 3]
     sensors: np.ndarray,  # [N, 3] the sensor that saw each point, same coordinates
     k: int = 12,
     max_flatness: float = 0.3,
 ) -> np.ndarray:  # -> [N, 3]
-    """Unit normals (smallest principal axis of the k nearest neighbours) turned towards each
-    point's sensor; zero where the neighbourhood is not a surface: a line of points (one scan
-    line) has no normal, nor does a blob (smallest over middle eigenvalue above ``max_flatness``)."""
-    n = len(points)
-    if n < 3:
-        return np.zeros((n, 3))
-    eig, Vt = _local_pca(points, k)
-    normals = Vt[:, 2].copy()
+    """:func:`surface_normals` turned towards each point's sensor (zero rows stay zero)."""
+    normals = surface_normals(points, k, max_flatness)
     flip = np.einsum("ni,ni->n", normals, sensors - points) < 0
     normals[flip] *= -1.0
-    surface = (eig[:, 1] > 0.05 * np.maximum(eig[:, 0], 1e-12)) & (eig[:, 2] <= max_flatness * eig[:, 1])
-    normals[~surface] = 0.0
     return normals
 
 

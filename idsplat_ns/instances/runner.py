@@ -20,6 +20,7 @@ from idsplat_ns.instances.amodal_centre import AmodalCentreConfig, complete_cent
 from idsplat_ns.instances.cache import atomic_path, hash_json, remove_stale_temporaries, scene_fingerprint
 from idsplat_ns.instances.features.base import PointFeatures
 from idsplat_ns.instances.smoothing import SmoothingConfig, smooth_trajectory
+from idsplat_ns.instances.smoothing.observability import translation_covariances
 from idsplat_ns.instances.smoothing.smoother import SmoothedTrajectory
 from idsplat_ns.instances.features.config import FeatureConfig, make_feature_extractor, resolve_feature_kind
 from idsplat_ns.instances.lifting import LiftedInstances, LiftingConfig, lift_instances
@@ -37,8 +38,11 @@ TRACKS_FORMAT = 3
 LIFTING_FORMAT = 2
 # Bumped when the registration gives other results for the same settings, so that a cache made by
 # older code is not reused (2: ICP linearised about the pairs' centroid; 3: heading turns about the
-# amodal centre, parked instances not turned).
-REGISTRATION_VERSION = 4
+# amodal centre, parked instances not turned; 5: segments linked along the box's axis, not the
+# origin's mean travel direction).
+REGISTRATION_VERSION = 5
+# The same for the smoothing stage (2: translations not measured by a frame's surfaces).
+SMOOTHING_VERSION = 2
 
 
 @dataclass(frozen=True)
@@ -124,7 +128,12 @@ def smooth_tracks(tracks: InstanceTracks, config: SmoothingConfig) -> InstanceTr
     times = np.asarray(tracks.frame_times, np.float64)
     for inst in tracks.instances:
         meas = inst.measurement_times(times) if config.measurement_times else times
-        sm = smooth_trajectory(meas, inst.poses, inst.valid, config)
+        covariances = None
+        if config.degenerate_directions and inst.point_frames is not None:
+            covariances = translation_covariances(inst.canonical_points, inst.point_frames, len(times),
+                                                  config.measurement_trans_sigma, config.degenerate_ratio,
+                                                  config.degenerate_sigma)
+        sm = smooth_trajectory(meas, inst.poses, inst.valid, config, covariances)
         lo, hi = sm.span
         slack = float(np.max(np.abs(meas - times)))  # frame times lie at most this far outside [lo, hi]
         valid = (meas >= lo) & (meas <= hi)
@@ -262,7 +271,7 @@ def run_preprocessing(
         # Keyed on which instances stayed dynamic too, not only on the settings that decided it.
         dynamic_ids = sorted(int(i.instance_id) for i in tracks.instances)
         smooth_key = hash_json({"registration": reg_key, "static": asdict(config.static), "dynamic": dynamic_ids,
-                                "smoothing": asdict(config.smoothing)})
+                                "smoothing": asdict(config.smoothing), "version": SMOOTHING_VERSION})
         smoothing = config.smoothing
         tracks, cached = _cached_file(
             cache_dir / f"smoothing-{smooth_key}.npz",

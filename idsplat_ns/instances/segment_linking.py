@@ -25,7 +25,13 @@ import numpy as np
 
 from idsplat_ns.data.geometry import invert_pose, transform_points
 from idsplat_ns.errors import IDSplatError
-from idsplat_ns.instances.amodal_centre import amodal_centre, sensors_in_canonical, travel_direction, typical_size
+from idsplat_ns.instances.amodal_centre import (
+    amodal_centre,
+    box_heading,
+    sensors_in_canonical,
+    travel_direction,
+    typical_size,
+)
 from idsplat_ns.instances.tracks import InstanceTrack, fill_invalid_poses
 
 
@@ -67,6 +73,7 @@ def box_frame(
     forward = travel_direction(track.poses, track.valid)
     if size is None or forward is None or len(track.canonical_points) < 3:
         return None
+    forward = box_heading(track.canonical_points, forward, track.point_frames)
     sensors = sensors_in_canonical(track.poses, sensor_positions, np.flatnonzero(track.valid))
     centre = amodal_centre(track.canonical_points, forward, sensors, size[0], size[1])
     f = np.array([forward[0], forward[1], 0.0])

@@ -6,6 +6,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Optional
 
+from idsplat_ns.errors import IDSplatError
+
 
 @dataclass(frozen=True)
 class SmoothingConfig:
@@ -85,3 +87,22 @@ class SmoothingConfig:
     weak_shared_rotation_sigma: float = 3.0
     """Std [rad] of a weak prior that keeps the shared rotation at its initial value when the
     motion does not determine it (a stopped object). Negligible otherwise."""
+    degenerate_directions: bool = True
+    """Ours: a registration does not measure the directions its points show no surface facing
+    (a car seen only from its side slides along its length; see observability.py): there its
+    translation sigma is ``degenerate_sigma``, and such a slide neither flags the measurement as
+    an outlier nor ends the span. Needs the instance's per-frame points. False: the paper's
+    isotropic ``measurement_trans_sigma``."""
+    degenerate_ratio: float = 0.2
+    """A direction is not measured when its point-to-plane information is below this fraction of
+    the frame's strongest direction's (0 measures every direction)."""
+    degenerate_sigma: float = 3.0
+    """Largest std [m] of a registration's translation along a direction it does not measure
+    (there it is half the room the frame's points have to slide: the instance's extent minus the
+    frame's own)."""
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.degenerate_ratio <= 1.0:
+            raise IDSplatError(f"smoothing.degenerate-ratio must be within [0, 1], got {self.degenerate_ratio}")
+        if not self.degenerate_sigma > 0.0:
+            raise IDSplatError(f"smoothing.degenerate-sigma must be > 0 metres, got {self.degenerate_sigma}")

@@ -31,25 +31,56 @@ def curvature_key(i: int) -> int:
     return K(i)
 
 
-def measurement_noise(config: SmoothingConfig, robust: bool = True) -> gtsam.noiseModel.Base:
-    """Diagonal pose noise ``[rot x3, trans x3]`` of the measurement factors, Huber-robust if asked."""
-    sigmas = np.array([config.measurement_rot_sigma] * 3 + [config.measurement_trans_sigma] * 3)
-    gaussian = gtsam.noiseModel.Diagonal.Sigmas(sigmas)
+def measurement_covariance(
+    config: SmoothingConfig,
+    translation_covariance: np.ndarray | None = None,  # [3, 3] in the measurement's own (canonical) frame
+) -> np.ndarray:  # -> [6, 6] over ``[rot x3, trans x3]``
+    """Covariance of a pose measurement in GTSAM's Pose3 tangent (rotation, then translation in
+    the measured pose's frame): the configured sigmas, or the given translation block."""
+    cov = np.diag([config.measurement_rot_sigma**2] * 3 + [config.measurement_trans_sigma**2] * 3)
+    if translation_covariance is not None:
+        cov[3:, 3:] = translation_covariance
+    return cov
+
+
+def measurement_noise(
+    config: SmoothingConfig,
+    robust: bool = True,
+    translation_covariance: np.ndarray | None = None,  # [3, 3]
+) -> gtsam.noiseModel.Base:
+    """Pose noise ``[rot x3, trans x3]`` of the measurement factors (diagonal unless a translation
+    covariance is given), Huber-robust if asked."""
+    if translation_covariance is None:
+        sigmas = np.array([config.measurement_rot_sigma] * 3 + [config.measurement_trans_sigma] * 3)
+        gaussian = gtsam.noiseModel.Diagonal.Sigmas(sigmas)
+    else:
+        gaussian = gtsam.noiseModel.Gaussian.Covariance(measurement_covariance(config, translation_covariance))
     if not robust:
         return gaussian
     return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(config.huber_threshold), gaussian)
 
 
-def measurement_factor(i: int, measured: np.ndarray, config: SmoothingConfig) -> gtsam.PriorFactorPose3:  # measured: [4, 4]
+def measurement_factor(
+    i: int,
+    measured: np.ndarray,  # [4, 4]
+    config: SmoothingConfig,
+    translation_covariance: np.ndarray | None = None,  # [3, 3]
+) -> gtsam.PriorFactorPose3:
     """Absolute pose measurement at step ``i`` (Huber loss)."""
-    return gtsam.PriorFactorPose3(pose_key(i), gtsam.Pose3(measured), measurement_noise(config))
+    return gtsam.PriorFactorPose3(pose_key(i), gtsam.Pose3(measured), measurement_noise(config, True, translation_covariance))
 
 
-def whitened_measurement_error(measured: np.ndarray, estimate: gtsam.Pose3, config: SmoothingConfig) -> float:  # measured: [4, 4]
-    """Norm of the Gaussian-whitened error ``Local(measured, estimate) / sigmas`` (no robust loss)."""
+def whitened_measurement_error(
+    measured: np.ndarray,  # [4, 4]
+    estimate: gtsam.Pose3,
+    config: SmoothingConfig,
+    translation_covariance: np.ndarray | None = None,  # [3, 3]
+) -> float:
+    """Mahalanobis norm of ``Local(measured, estimate)`` under the measurement's Gaussian noise
+    (no robust loss)."""
     local = gtsam.Pose3(measured).localCoordinates(estimate)
-    sigmas = np.array([config.measurement_rot_sigma] * 3 + [config.measurement_trans_sigma] * 3)
-    return float(np.linalg.norm(local / sigmas))
+    cov = measurement_covariance(config, translation_covariance)
+    return float(np.sqrt(local @ np.linalg.solve(cov, local)))
 
 
 def motion_factor(i: int, dt: float, config: SmoothingConfig) -> gtsam.CustomFactor:

@@ -177,11 +177,16 @@ def _initial_guess(times: np.ndarray, poses: np.ndarray, valid: np.ndarray) -> _
 
 
 def _build_graph(
-    times: np.ndarray, measured: np.ndarray, use: np.ndarray, init: _InitialGuess, config: SmoothingConfig
+    times: np.ndarray,
+    measured: np.ndarray,
+    use: np.ndarray,
+    init: _InitialGuess,
+    config: SmoothingConfig,
+    covariances: list[np.ndarray | None],  # per step: [3, 3] translation covariance, or None (config's)
 ) -> gtsam.NonlinearFactorGraph:
     graph = gtsam.NonlinearFactorGraph()
     for t in np.flatnonzero(use):
-        graph.add(F.measurement_factor(int(t), measured[t], config))
+        graph.add(F.measurement_factor(int(t), measured[t], config, covariances[t]))
     for t in range(len(times)):
         graph.add(F.tilt_factor(t, config))
         graph.add(F.curvature_prior_factor(t, config))
@@ -223,12 +228,13 @@ def _flag_outliers(
     valid: np.ndarray,  # [T] bool
     values: gtsam.Values,
     config: SmoothingConfig,
+    covariances: list[np.ndarray | None],  # per step: [3, 3] or None
 ) -> tuple[np.ndarray, float, np.ndarray]:
     """Whitened measurement errors [T] (NaN where none) of ``values``, the outlier threshold and
     the inlier mask [T]."""
     errors = np.full(len(measured), np.nan)
     for t in np.flatnonzero(valid):
-        errors[t] = F.whitened_measurement_error(measured[t], values.atPose3(F.pose_key(int(t))), config)
+        errors[t] = F.whitened_measurement_error(measured[t], values.atPose3(F.pose_key(int(t))), config, covariances[t])
     threshold = _outlier_threshold(errors[valid], config)
     return errors, threshold, valid & (errors <= threshold)
 
@@ -238,19 +244,32 @@ def smooth_trajectory(
     poses: np.ndarray,  # [T, 4, 4] measured poses (canonical -> world); rows where ~valid are ignored
     valid: np.ndarray,  # [T] bool, which measurements exist
     config: SmoothingConfig | None = None,
+    translation_covariances: np.ndarray | None = None,  # [T, 3, 3] per measurement, its own frame (observability.py)
 ) -> SmoothedTrajectory:
     """Robust coordinated-turn smoothing of one instance's measured poses.
 
     Returns smoothed poses at every step (also where measurements are missing, extrapolated by the
     motion model before the first and after the last measurement), speeds, curvatures, the shared
     rotation, the mask of measurements kept as inliers, and ``pose_at`` for any time in the span
-    of the measurements. Raises ValueError on malformed input (a programming error, not user input).
+    of the measurements. ``translation_covariances`` replace ``config.measurement_trans_sigma``
+    per measurement (its translation is uncertain along directions its points do not measure).
+    Raises ValueError on malformed input (a programming error, not user input).
     """
     config = config or SmoothingConfig()
     times = np.asarray(times, dtype=np.float64)
     poses = np.asarray(poses, dtype=np.float64)
     valid = np.asarray(valid, dtype=bool)
     _validate(times, poses, valid)
+    covariances: list[np.ndarray | None] = [None] * len(times)
+    # Maps a measurement's translation error to metres at the configured sigma (identity when isotropic).
+    to_measured = np.tile(np.eye(3), (len(times), 1, 1))  # [T, 3, 3]
+    if translation_covariances is not None:
+        if np.shape(translation_covariances) != (len(times), 3, 3):
+            raise ValueError(f"smooth_trajectory: `translation_covariances` must have shape ({len(times)}, 3, 3), "
+                             f"got {np.shape(translation_covariances)}")
+        for t in np.flatnonzero(valid):
+            covariances[t] = np.asarray(translation_covariances[t], np.float64)
+            to_measured[t] = config.measurement_trans_sigma * np.linalg.inv(np.linalg.cholesky(covariances[t]))
 
     # Recentre (huge map coordinates): the factors see positions relative to the first valid one.
     origin = poses[np.flatnonzero(valid)[0], :3, 3].copy()
@@ -267,20 +286,22 @@ def smooth_trajectory(
         usable &= ~gross_yaw_outliers(measured, valid, config.gross_yaw_deviation)
     init = _initial_guess(times, measured, usable)
     values = _values_from(init)
-    first = _optimize(_build_graph(times, measured, usable, init, config), values, config.first_pass_iterations)
+    first = _optimize(_build_graph(times, measured, usable, init, config, covariances), values,
+                      config.first_pass_iterations)
 
-    errors, threshold, inliers = _flag_outliers(measured, valid, first, config)
+    errors, threshold, inliers = _flag_outliers(measured, valid, first, config, covariances)
     inliers &= usable
     if inliers.sum() < config.reconverge_below_inlier_fraction * usable.sum():
         # The single first iteration did not converge: iterate it before trusting its residuals.
-        first = _optimize(_build_graph(times, measured, usable, init, config), first, config.final_iterations)
-        errors, threshold, inliers = _flag_outliers(measured, valid, first, config)
+        first = _optimize(_build_graph(times, measured, usable, init, config, covariances), first,
+                          config.final_iterations)
+        errors, threshold, inliers = _flag_outliers(measured, valid, first, config, covariances)
         inliers &= usable
     if not inliers.any():
         # Everything looks wrong: keep the measurement that agrees best rather than none.
         inliers[int(np.nanargmin(errors))] = True
 
-    final = _optimize(_build_graph(times, measured, inliers, init, config), first, config.final_iterations)
+    final = _optimize(_build_graph(times, measured, inliers, init, config, covariances), first, config.final_iterations)
 
     T = len(times)
     out_poses = np.empty((T, 4, 4))
@@ -288,7 +309,10 @@ def smooth_trajectory(
         out_poses[t] = final.atPose3(F.pose_key(t)).matrix()
     spanning = valid.copy()
     if config.span_max_distance is not None:
-        gap = np.linalg.norm(out_poses[:, :3, 3] - measured[:, :3, 3], axis=1)
+        # In each measurement's own frame, scaled by its certainty (a slide along a face it does
+        # not measure counts for little).
+        local = np.einsum("tji,tj->ti", measured[:, :3, :3], out_poses[:, :3, 3] - measured[:, :3, 3])
+        gap = np.linalg.norm(np.einsum("tij,tj->ti", to_measured, local), axis=1)
         spanning &= gap <= config.span_max_distance
         if not spanning.any():
             spanning = inliers
