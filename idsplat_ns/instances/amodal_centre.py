@@ -184,6 +184,7 @@ def complete_centres(
         if size is None or forward is None or not measured.any() or len(inst.canonical_points) < 3:
             out.append(inst)
             continue
+        forward = box_heading(inst.canonical_points, forward, inst.point_frames)
         sensors = sensors_in_canonical(inst.poses, sensor_positions, np.flatnonzero(measured))
         c = amodal_centre(inst.canonical_points, forward, sensors, size[0], size[1], config.trim)
         points, poses = shift_origin(inst.canonical_points, inst.poses, c)

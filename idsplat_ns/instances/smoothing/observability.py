@@ -47,15 +47,19 @@ def frame_information(
 def measured_axes(
     information: np.ndarray,  # [3, 3] a frame's A
     degenerate_ratio: float,
+    num_points: int = 0,
+    min_facing_points: float = np.inf,
 ) -> tuple[np.ndarray, np.ndarray]:  # -> [3, 3] axes as columns, [3] bool measured
-    """Principal axes of ``information`` and which of them the registration measures (information
-    at least ``degenerate_ratio`` of the strongest). A frame without any surface keeps every axis
+    """Principal axes of ``information`` and which of them the registration measures: those with
+    at least ``degenerate_ratio`` of the strongest axis's information, or with at least
+    ``min_facing_points`` of the frame's ``num_points`` points facing them (a near side view
+    has its wheel arches, mirrors and corners). A frame without any surface keeps every axis
     (nothing is known about its geometry: the paper's isotropic measurement)."""
     values, axes = np.linalg.eigh(information)
     strongest = float(values[-1])
     if strongest <= 1e-9:
         return np.eye(3), np.ones(3, bool)
-    return axes, values >= degenerate_ratio * strongest
+    return axes, (values >= degenerate_ratio * strongest) | (values * num_points >= min_facing_points)
 
 
 def translation_covariances(
@@ -67,6 +71,7 @@ def translation_covariances(
     degenerate_sigma: float,
     min_anchor_frames: int = 2,
     min_frame_points: int = 24,
+    min_facing_points: float = 10.0,
 ) -> np.ndarray:  # -> [F, 3, 3] canonical frame
     """Covariance of each frame's registered translation: ``sigma`` along the directions its
     surfaces measure, ``degenerate_sigma`` along those it does not but at least
@@ -91,7 +96,7 @@ def translation_covariances(
         if numbers[f] < max(min_frame_points, 3):
             projectors[f] = (np.zeros((3, 3)), np.eye(3))
             continue
-        axes, measured = measured_axes(information[f], degenerate_ratio)
+        axes, measured = measured_axes(information[f], degenerate_ratio, int(numbers[f]), min_facing_points)
         projectors[f] = (axes[:, measured] @ axes[:, measured].T, axes[:, ~measured])
     for f in seen:
         unmeasured = projectors[f][1]  # [3, K]
