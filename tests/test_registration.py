@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -14,7 +16,9 @@ from idsplat_ns.instances.registration import (
     register,
     registration_fitness,
     umeyama_rigid,
+    upright,
 )
+from idsplat_ns.data.geometry import make_pose
 
 FAST = RegistrationConfig(max_iterations=5000)
 
@@ -236,3 +240,32 @@ def test_register_with_sensors_refuses_the_other_side():
     off = register(source, feat, target, feat, RegistrationConfig(max_iterations=2000, back_face_tolerance=None),
                    seen_from, np.array([0.0, 10.0, 1.0]))
     assert off.success  # None: the paper's distance-only fitness
+
+
+def test_upright_hypotheses_only_a_flat_side_does_not_register_upside_down():
+    """A car's flat side matches the other side upside down as well as the right way up; with
+    ``max_tilt`` only upright transforms are considered (None: any rotation, the paper's)."""
+    from idsplat_ns.instances.registration import upright
+
+    assert upright(np.eye(3), math.radians(20.0))
+    assert not upright(np.diag([1.0, -1.0, -1.0]), math.radians(20.0))  # upside down
+    assert upright(np.diag([1.0, -1.0, -1.0]), None)
+    tilt = lambda a: np.array([[1, 0, 0], [0, math.cos(a), -math.sin(a)], [0, math.sin(a), math.cos(a)]])
+    np.testing.assert_array_equal(upright(np.stack([tilt(math.radians(19)), tilt(math.radians(21))]),
+                                  math.radians(20.0)), [True, False])
+    rng = np.random.default_rng(0)
+    # A thin box (a car's side panel with its upper and lower edges), features that cannot tell
+    # up from down: the panel turned 180 degrees about its long axis matches as well.
+    n = 600
+    pts = np.stack([rng.uniform(-2, 2, n), rng.normal(0, 0.003, n), rng.uniform(-0.5, 0.5, n)], 1)
+    feat = np.stack([np.abs(pts[:, 0]), np.abs(pts[:, 2]), np.ones(n)], 1)  # symmetric under the flip
+    flip = make_pose(np.diag([1.0, -1.0, -1.0]), np.array([5.0, 1.0, 0.0]))
+    target = pts @ flip[:3, :3].T + flip[:3, 3]
+    free = register(pts, feat, target, feat, RegistrationConfig(max_tilt=None, icp_iterations=0))
+    assert free.success and free.transform[2, 2] < -0.99  # upside down, fitness 1
+    kept = register(pts, feat, target, feat, RegistrationConfig(icp_iterations=0))
+    # The feature matches only support the flip: no upright hypothesis, so no registration
+    # (rather than an upside-down one).
+    assert not kept.success and kept.transform[2, 2] > math.cos(math.radians(20.0))
+    # With ICP too, nothing tilted comes out.
+    assert register(pts, feat, target, feat, RegistrationConfig()).transform[2, 2] > math.cos(math.radians(20.0))

@@ -115,9 +115,10 @@ def test_translation_covariances_of_wrong_shape_are_a_clear_error():
         smooth_trajectory(times, poses, np.ones(len(times), bool), None, np.zeros((3, 3, 3)))
 
 
-@pytest.mark.parametrize("field, value", [("degenerate_ratio", 1.5), ("degenerate_ratio", -0.1), ("degenerate_sigma", 0.0)])
+@pytest.mark.parametrize("field, value", [("degenerate_ratio", 1.5), ("degenerate_ratio", -0.1), ("degenerate_sigma", 0.0),
+                                          ("degenerate_min_anchor_frames", -1)])
 def test_degenerate_settings_are_checked(field, value):
-    with pytest.raises(IDSplatError, match=field.replace("_", "-")):
+    with pytest.raises(IDSplatError, match=field.replace("_", "-").replace("degenerate-min-anchor-frames", "min-anchor-frames")):
         SmoothingConfig(**{field: value})
 
 

@@ -39,8 +39,8 @@ LIFTING_FORMAT = 2
 # Bumped when the registration gives other results for the same settings, so that a cache made by
 # older code is not reused (2: ICP linearised about the pairs' centroid; 3: heading turns about the
 # amodal centre, parked instances not turned; 5: segments linked along the box's axis, not the
-# origin's mean travel direction).
-REGISTRATION_VERSION = 5
+# origin's mean travel direction; 6: hypotheses that tilt the vehicle are not considered).
+REGISTRATION_VERSION = 6
 # The same for the smoothing stage (2: translations not measured by a frame's surfaces).
 SMOOTHING_VERSION = 2
 
@@ -130,9 +130,10 @@ def smooth_tracks(tracks: InstanceTracks, config: SmoothingConfig) -> InstanceTr
         meas = inst.measurement_times(times) if config.measurement_times else times
         covariances = None
         if config.degenerate_directions and inst.point_frames is not None:
-            covariances = translation_covariances(inst.canonical_points, inst.point_frames, len(times),
-                                                  config.measurement_trans_sigma, config.degenerate_ratio,
-                                                  config.degenerate_sigma)
+            covariances = translation_covariances(
+                inst.canonical_points, inst.point_frames, len(times), config.measurement_trans_sigma,
+                config.degenerate_ratio, config.degenerate_sigma, config.degenerate_min_anchor_frames,
+                config.degenerate_min_frame_points, config.degenerate_min_facing_points)
         sm = smooth_trajectory(meas, inst.poses, inst.valid, config, covariances)
         lo, hi = sm.span
         slack = float(np.max(np.abs(meas - times)))  # frame times lie at most this far outside [lo, hi]

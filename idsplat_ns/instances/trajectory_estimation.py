@@ -35,6 +35,7 @@ from idsplat_ns.instances.registration import (
     icp_point_to_plane,
     register,
     registration_fitness,
+    upright,
 )
 from idsplat_ns.instances.segment_linking import SegmentLinkConfig, link_segment
 from idsplat_ns.instances.static_conversion import StaticConversionConfig, is_stationary
@@ -321,7 +322,8 @@ def _register_chain(
             fitness[o.frame] = max(fitness[o.frame], result.fitness, prior_fit)
             transform, fit = None, 0.0
             for candidate, score in ((result.transform, result.fitness if result.success else 0.0), (prior, prior_fit)):
-                if score > fit and np.linalg.norm(candidate[:3, 3] - prediction[:3, 3]) <= config.chain_max_deviation:
+                if (score > fit and np.linalg.norm(candidate[:3, 3] - prediction[:3, 3]) <= config.chain_max_deviation
+                        and upright(candidate[:3, :3], config.registration.max_tilt)):
                     transform, fit = candidate, score
             if transform is not None and fit >= config.registration.fitness_threshold:
                 accept(o, transform)
@@ -372,6 +374,8 @@ def _correct_headings(
         target = by_frame[f].points
         turned = turn_about(poses[f], centre, float(error[f]))
         refined = icp_point_to_plane(turned, reference, target, reg.icp_iterations, reg.icp_distance)
+        if not upright(refined[:3, :3], reg.max_tilt):
+            refined = turned
         seen_from = None if visibility is None else replace(visibility, target_sensor=sensor_positions[f])
         fit = registration_fitness(refined, reference, target, reg.inlier_distance, seen_from)
         if fit >= reg.fitness_threshold:

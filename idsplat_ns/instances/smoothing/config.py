@@ -97,12 +97,25 @@ class SmoothingConfig:
     """A direction is not measured when its point-to-plane information is below this fraction of
     the frame's strongest direction's (0 measures every direction)."""
     degenerate_sigma: float = 3.0
-    """Largest std [m] of a registration's translation along a direction it does not measure
-    (there it is half the room the frame's points have to slide: the instance's extent minus the
-    frame's own)."""
+    """Std [m] of a registration's translation along a direction it does not measure (about a
+    car's half length: where a slide along a face can end)."""
+    degenerate_min_facing_points: float = 10.0
+    """A direction is also measured when at least this many of the frame's points face it (a
+    near side view has wheel arches, mirrors and corners)."""
+    degenerate_min_anchor_frames: int = 2
+    """An unmeasured direction is left to the motion only where at least this many other frames
+    measure it; elsewhere (a car followed from behind is never measured sideways) it keeps
+    ``measurement_trans_sigma``."""
+    degenerate_min_frame_points: int = 24
+    """Frames with fewer points measure no direction and anchor none (their neighbourhoods are
+    the whole view, not its surfaces)."""
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.degenerate_ratio <= 1.0:
             raise IDSplatError(f"smoothing.degenerate-ratio must be within [0, 1], got {self.degenerate_ratio}")
         if not self.degenerate_sigma > 0.0:
             raise IDSplatError(f"smoothing.degenerate-sigma must be > 0 metres, got {self.degenerate_sigma}")
+        if min(self.degenerate_min_facing_points, self.degenerate_min_anchor_frames, self.degenerate_min_frame_points) < 0:
+            raise IDSplatError("smoothing.degenerate-min-facing-points, -min-anchor-frames and -min-frame-points "
+                               f"must be >= 0; got {self.degenerate_min_facing_points}, "
+                               f"{self.degenerate_min_anchor_frames}, {self.degenerate_min_frame_points}")

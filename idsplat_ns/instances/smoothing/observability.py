@@ -9,10 +9,11 @@ track, consistently enough for the smoother to follow them as a slowing car.
 
 The point-to-plane information of a frame in direction ``u`` is the share of its points whose
 surface faces ``u``: ``u^T A u`` with ``A = mean(n n^T)`` over its points (unit surface normals,
-zero where the neighbourhood is not a surface). A direction whose information is below
-``degenerate_ratio`` of the frame's strongest direction is not measured: the smoother gives it
-``degenerate_sigma`` instead of the paper's measurement sigma, and the CT motion model carries the
-position there (the degeneracy test of Zhang et al., ICRA 2016, on normalised eigenvalues).
+zero where the neighbourhood is not a surface). A direction is not measured when its information
+is below ``degenerate_ratio`` of the frame's strongest direction's (the degeneracy test of Zhang
+et al., ICRA 2016, on normalised eigenvalues) and fewer than ``min_facing_points`` points face
+it. Where other frames measure it, the smoother gives it ``degenerate_sigma`` instead of the
+paper's measurement sigma, and the CT motion model carries the position there.
 """
 
 from __future__ import annotations
