@@ -162,3 +162,23 @@ def test_bad_link_settings_are_one_line_errors():
         SegmentLinkConfig(speed_ratio=0.0)
     with pytest.raises(IDSplatError, match="max-intruders must be >= 0"):
         SegmentLinkConfig(max_intruders=-1)
+
+
+def test_misregistered_first_frames_before_the_whole_segment_are_dropped_to_link():
+    """Seed 8: the instance's first three frames registered a quarter turn off, ahead of the
+    whole segment, so the segment sat inside the instance's span and no frame of either part was
+    "inside" the other's alone. The fewest frames that put one part before the other are dropped."""
+    near = _part([1, 2, 3, 9, 10, 11, 12, 13], TO_NEAR)
+    wrong = near.poses.copy()
+    for f in (1, 2, 3):
+        wrong[f] = near.poses[f] @ make_pose(rot_z(-np.pi / 2), np.array([1.5, 0.5, 0.0]))
+    near = replace(near, poses=wrong)
+    far = _part([4, 5, 6, 7], TO_FAR)
+    linked = link_segment(near, far, _sensors(), TIMES)
+    assert linked is not None
+    assert not linked.valid[[1, 2, 3]].any() and linked.valid[[4, 5, 6, 7, 9, 13]].all()
+    box = _box_poses()
+    for f in (4, 5, 6, 7):
+        assert np.linalg.norm(linked.poses[f][:2, 3] - (box[f] @ invert_pose(TO_NEAR))[:2, 3]) < 0.4
+    # Only up to max_intruders frames (parts that alternate, half of a part: the test above).
+    assert link_segment(near, far, _sensors(), TIMES, SegmentLinkConfig(max_intruders=2)) is None

@@ -39,8 +39,9 @@ LIFTING_FORMAT = 2
 # Bumped when the registration gives other results for the same settings, so that a cache made by
 # older code is not reused (2: ICP linearised about the pairs' centroid; 3: heading turns about the
 # amodal centre, parked instances not turned; 5: segments linked along the box's axis, not the
-# origin's mean travel direction; 6: hypotheses that tilt the vehicle are not considered).
-REGISTRATION_VERSION = 6
+# origin's mean travel direction; 6: hypotheses that tilt the vehicle are not considered; 7: the
+# fewest frames of either part dropped to link a segment).
+REGISTRATION_VERSION = 7
 # The same for the smoothing stage (2: translations not measured by a frame's surfaces).
 SMOOTHING_VERSION = 2
 

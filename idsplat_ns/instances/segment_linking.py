@@ -48,11 +48,12 @@ class SegmentLinkConfig:
     speed_slack: float = 1.0
     """...give or take this many metres per second (slow vehicles, noisy short parts)."""
     max_intruders: int = 3
-    """Frames of one part inside the other part's time span (the parts then interleave) that are
-    dropped to link them, from the part that needs fewer dropped: a few frames among the other
-    part's consistent ones are the misregistered ones (seed 0: one far frame registered onto the
-    near canonical points a quarter turn and 2.7 m off; seed 7: three far frames 1.2 m off with the
-    right rotation, between seven of the segment's within 0.4 m). More than this many: no link."""
+    """Where the parts interleave in time, the fewest frames (of either part) whose removal puts
+    one part wholly before the other are dropped to link them, up to this many: a few frames among
+    the other part's consistent ones are the misregistered ones (seed 0: one far frame registered
+    onto the near canonical points a quarter turn and 2.7 m off; seed 7: three far frames 1.2 m off
+    with the right rotation, between seven of the segment's within 0.4 m; seed 8: the instance's
+    three first frames a quarter turn off, before the whole segment). More: no link."""
 
     def __post_init__(self) -> None:
         if self.speed_ratio < 1.0:
@@ -94,33 +95,37 @@ def _drop_frames(track: InstanceTrack, frames: np.ndarray) -> InstanceTrack:  # 
     return replace(out, valid=track.valid & keep)
 
 
-def _inside(frames: np.ndarray, other: np.ndarray) -> np.ndarray:  # [K], [L] sorted -> [J]
-    """The ``frames`` strictly inside ``other``'s span."""
-    return frames[(frames > other[0]) & (frames < other[-1])] if len(other) else frames[:0]
-
-
 def _without_intruders(
     track: InstanceTrack, segment: InstanceTrack, max_intruders: int
 ) -> Optional[tuple[InstanceTrack, InstanceTrack]]:
-    """Both parts, one of them without its frames that lie inside the other part's time span,
-    such that the two no longer overlap in time; None when that takes more than
-    ``max_intruders`` frames (the fewer the better)."""
+    """Both parts without the fewest frames whose removal puts one part wholly before the other in
+    time, or None when that takes more than ``max_intruders`` frames or half of a part's frames
+    (the parts then truly interleave). The frames dropped are the
+    misregistered ones: a lone far frame registered into the other part's span, or the first few
+    frames of a part registered a quarter turn off ahead of the other (seed 8: three such frames
+    before the segment made the segment sit inside the instance's span)."""
     a, b = np.flatnonzero(track.valid), np.flatnonzero(segment.valid)
     if len(a) == 0 or len(b) == 0:
         return None
-    options = []
-    for drop_from_track in (True, False):
-        mine, other = (a, b) if drop_from_track else (b, a)
-        intruders = _inside(mine, other)
-        rest = np.setdiff1d(mine, intruders)
-        if len(intruders) <= max_intruders and len(rest) and not len(_inside(other, rest)):
-            options.append((len(intruders), drop_from_track, intruders))
-    if not options:
+    best = None  # (dropped count, frames dropped from track, frames dropped from segment)
+    for cut in np.union1d(a, b) + 0.5:  # the split lies between frames: one part before, one after
+        for track_first in (True, False):
+            drop_a = a[a > cut] if track_first else a[a < cut]
+            drop_b = b[b < cut] if track_first else b[b > cut]
+            if 2 * len(drop_a) >= len(a) > 0 < len(drop_a) or 2 * len(drop_b) >= len(b) > 0 < len(drop_b):
+                continue  # dropped frames must be a minority of their part (else the parts interleave)
+            cost = len(drop_a) + len(drop_b)
+            if best is None or cost < best[0]:
+                best = (cost, drop_a, drop_b)
+    for track_first in (True, False):  # a cut before all frames: one part wholly after the other
+        first, second = (a, b) if track_first else (b, a)
+        if first[-1] < second[0]:
+            best = (0, a[:0], b[:0])
+    if best is None or best[0] > max_intruders:
         return None
-    _, drop_from_track, intruders = min(options, key=lambda o: o[0])
-    if drop_from_track:
-        return _drop_frames(track, intruders), segment
-    return track, _drop_frames(segment, intruders)
+    _, drop_a, drop_b = best
+    return (_drop_frames(track, drop_a) if len(drop_a) else track,
+            _drop_frames(segment, drop_b) if len(drop_b) else segment)
 
 
 def link_segment(
