@@ -107,20 +107,18 @@ def _without_intruders(
     a, b = np.flatnonzero(track.valid), np.flatnonzero(segment.valid)
     if len(a) == 0 or len(b) == 0:
         return None
+    majority = lambda dropped, part: len(dropped) > 0 and 2 * len(dropped) >= len(part)
     best = None  # (dropped count, frames dropped from track, frames dropped from segment)
-    for cut in np.union1d(a, b) + 0.5:  # the split lies between frames: one part before, one after
+    # Every split between two frames, with either part first (parts apart already cost nothing).
+    for cut in np.union1d(a, b) + 0.5:
         for track_first in (True, False):
             drop_a = a[a > cut] if track_first else a[a < cut]
             drop_b = b[b < cut] if track_first else b[b > cut]
-            if 2 * len(drop_a) >= len(a) > 0 < len(drop_a) or 2 * len(drop_b) >= len(b) > 0 < len(drop_b):
-                continue  # dropped frames must be a minority of their part (else the parts interleave)
+            if majority(drop_a, a) or majority(drop_b, b):
+                continue  # the parts truly interleave there
             cost = len(drop_a) + len(drop_b)
             if best is None or cost < best[0]:
                 best = (cost, drop_a, drop_b)
-    for track_first in (True, False):  # a cut before all frames: one part wholly after the other
-        first, second = (a, b) if track_first else (b, a)
-        if first[-1] < second[0]:
-            best = (0, a[:0], b[:0])
     if best is None or best[0] > max_intruders:
         return None
     _, drop_a, drop_b = best
