@@ -24,7 +24,7 @@ from typing import Optional
 
 import numpy as np
 
-from idsplat_ns.instances.registration import surface_normals
+from idsplat_ns.instances.registration import frame_surface_normals
 from idsplat_ns.instances.tracks import InstanceTracks
 
 # Typical (length, width) in metres per class keyword; the first keyword found in the label wins.
@@ -143,11 +143,7 @@ def box_heading(
     ``forward`` itself where the points show no vertical faces."""
     f = np.array([forward[0], forward[1], 0.0])
     f /= max(np.linalg.norm(f), 1e-12)
-    points = np.asarray(points, np.float64)
-    groups = [np.arange(len(points))] if point_frames is None else [
-        np.flatnonzero(point_frames == g) for g in np.unique(point_frames)]
-    normals = np.concatenate([surface_normals(points[g], k) for g in groups if len(g) >= 3] or [np.zeros((0, 3))])
-    horizontal = normals[:, :2]
+    horizontal = frame_surface_normals(points, point_frames, k)[:, :2]
     weight = np.einsum("ni,ni->n", horizontal, horizontal)  # cos^2 of the face's tilt; 0 without a normal
     if weight.sum() < 1e-6:
         return f

@@ -194,6 +194,24 @@ def surface_normals(
     return normals
 
 
+def frame_surface_normals(
+    points: np.ndarray,  # [N, 3]
+    point_frames: np.ndarray | None = None,  # [N] the frame each point was seen in
+    k: int = 12,
+) -> np.ndarray:  # -> [N, 3]
+    """:func:`surface_normals` of each frame's own points (all points as one when no frames are
+    given): merged frames registered centimetres apart are no surface at that scale."""
+    points = np.asarray(points, np.float64)
+    if point_frames is None:
+        return surface_normals(points, k)
+    frames = np.asarray(point_frames)
+    out = np.zeros((len(points), 3))
+    for f in np.unique(frames):
+        rows = np.flatnonzero(frames == f)
+        out[rows] = surface_normals(points[rows], k)
+    return out
+
+
 def facing_normals(
     points: np.ndarray,  # [N, 3]
     sensors: np.ndarray,  # [N, 3] the sensor that saw each point, same coordinates

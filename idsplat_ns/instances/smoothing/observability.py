@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from idsplat_ns.instances.registration import surface_normals
+from idsplat_ns.instances.registration import frame_surface_normals
 
 
 def frame_information(
@@ -36,12 +36,11 @@ def frame_information(
     where its own points gave 99% a rearward one)."""
     out = np.zeros((num_frames, 3, 3))
     frames = np.asarray(point_frames, np.int64)
+    normals = frame_surface_normals(points, frames, k)
     for f in np.unique(frames):
-        if not 0 <= f < num_frames:
-            continue
-        own = np.asarray(points, np.float64)[frames == f]
-        normals = surface_normals(own, k)
-        out[f] = normals.T @ normals / len(own)
+        if 0 <= f < num_frames:
+            own = normals[frames == f]
+            out[f] = own.T @ own / len(own)
     return out
 
 
@@ -99,11 +98,12 @@ def translation_covariances(
             continue
         axes, measured = measured_axes(information[f], degenerate_ratio, int(numbers[f]), min_facing_points)
         projectors[f] = (axes[:, measured] @ axes[:, measured].T, axes[:, ~measured])
+    total = sum((measured for measured, _ in projectors.values()), np.zeros((3, 3)))  # [3, 3]
     for f in seen:
         unmeasured = projectors[f][1]  # [3, K]
         if unmeasured.shape[1] == 0:
             continue
-        others = sum((projectors[g][0] for g in seen if g != f), np.zeros((3, 3)))
+        others = total - projectors[f][0]
         counts, within = np.linalg.eigh(unmeasured.T @ others @ unmeasured)  # [K], [K, K]
         directions = unmeasured @ within  # [3, K]
         anchored = directions[:, counts >= min_anchor_frames - 1e-6]
