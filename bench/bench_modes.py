@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import subprocess
 import sys
 import time
@@ -40,6 +41,8 @@ def main() -> None:
     ap.add_argument("--modes", nargs="+", default=["static", "self-supervised", "oracle"])
     ap.add_argument("--output-dir", type=Path, default=Path("outputs/bench_modes"))
     ap.add_argument("--skip-existing", action="store_true", help="reuse runs whose eval.json exists")
+    ap.add_argument("--train-args", default="", help="extra ns-train options, one string (e.g. "
+                    "\"--optimizers.trajectory-positions.optimizer.lr 1e-2\")")
     args = ap.parse_args()
     rows = {}
     for mode in args.modes:
@@ -54,6 +57,7 @@ def main() -> None:
                 "--pipeline.datamanager.instance-mode", mode,
                 "--pipeline.datamanager.dataparser.builtin-preset", args.preset,
                 "--pipeline.datamanager.dataparser.builtin-seed", str(args.seed),
+                *shlex.split(args.train_args),
             ])
             _run([str(BIN / "ns-eval"), "--load-config", str(run_dir / "config.yml"), "--output-path", str(eval_json)])
         results = json.loads(eval_json.read_text())["results"]

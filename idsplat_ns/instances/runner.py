@@ -43,7 +43,7 @@ LIFTING_FORMAT = 2
 # fewest frames of either part dropped to link a segment).
 REGISTRATION_VERSION = 7
 # The same for the smoothing stage (2: translations not measured by a frame's surfaces).
-SMOOTHING_VERSION = 2
+SMOOTHING_VERSION = 3
 
 
 @dataclass(frozen=True)

@@ -23,6 +23,16 @@ class SmoothingConfig:
     """Std of the CT motion factor between successive states, rotation part [rad]."""
     motion_trans_sigma: float = 0.2
     """Std of the CT motion factor between successive states, translation part [m]."""
+    motion_vertical_sigma: Optional[float] = 0.02
+    """Ours: std [m] of the CT motion factor's vertical (motion-frame z) translation per step. A car
+    follows the road: in its own pitched frame it does not move up or down, beyond its suspension.
+    None: the isotropic ``motion_trans_sigma`` (the paper's)."""
+    motion_tilt_sigma: Optional[float] = 0.01
+    """Ours: std [rad] of the CT motion factor's roll and pitch change per step (0.6 degrees).
+    With the paper's 0.1 rad, the registrations' 1-5 degree pitch noise made the smoothed car climb
+    and sink: the CT model moves it along its pitched x axis (measured on the synthetic street:
+    a followed car 0.1 m up and down where its registrations were within 0.05 m, about 1.5 px at
+    its distance; docs/smoothing.md). None: the isotropic ``motion_rot_sigma`` (the paper's)."""
     speed_walk_rate: float = 0.5
     """Random walk on speed: std over a step of dt seconds is sqrt(speed_walk_rate * dt) [m/s]."""
     curvature_walk_rate: float = 1e-5
@@ -111,6 +121,10 @@ class SmoothingConfig:
     the whole view, not its surfaces)."""
 
     def __post_init__(self) -> None:
+        for name in ("motion_vertical_sigma", "motion_tilt_sigma"):
+            value = getattr(self, name)
+            if value is not None and not value > 0.0:
+                raise IDSplatError(f"smoothing.{name.replace('_', '-')} must be > 0 or None, got {value}")
         if not 0.0 <= self.degenerate_ratio <= 1.0:
             raise IDSplatError(f"smoothing.degenerate-ratio must be within [0, 1], got {self.degenerate_ratio}")
         if not self.degenerate_sigma > 0.0:

@@ -83,11 +83,16 @@ def whitened_measurement_error(
     return float(np.sqrt(local @ np.linalg.solve(cov, local)))
 
 
+def motion_sigmas(config: SmoothingConfig) -> np.ndarray:  # -> [6] over [roll, pitch, yaw, x, y, z] of the motion frame
+    """Sigmas of the CT motion residual; the tilt and vertical ones where configured apart."""
+    tilt = config.motion_rot_sigma if config.motion_tilt_sigma is None else config.motion_tilt_sigma
+    vertical = config.motion_trans_sigma if config.motion_vertical_sigma is None else config.motion_vertical_sigma
+    return np.array([tilt, tilt, config.motion_rot_sigma, config.motion_trans_sigma, config.motion_trans_sigma, vertical])
+
+
 def motion_factor(i: int, dt: float, config: SmoothingConfig) -> gtsam.CustomFactor:
     """CT motion factor between the states at steps ``i`` and ``i + 1``, ``dt`` seconds apart."""
-    noise = gtsam.noiseModel.Diagonal.Sigmas(
-        np.array([config.motion_rot_sigma] * 3 + [config.motion_trans_sigma] * 3)
-    )
+    noise = gtsam.noiseModel.Diagonal.Sigmas(motion_sigmas(config))
     keys = [pose_key(i), pose_key(i + 1), speed_key(i), curvature_key(i), SHARED_KEY]
 
     def error(this: gtsam.CustomFactor, values: gtsam.Values, jac: gtsam.JacobianVector | None) -> np.ndarray:
