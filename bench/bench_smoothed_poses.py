@@ -8,7 +8,8 @@ canonical frame is arbitrary). Prints the mean 3D, height and tilt errors per va
 Registrations come from the same preprocessing as ``ns-train idsplat`` up to smoothing: the moving
 instances after the parked ones are converted (cached in ``--work``, the same layout as
 ``bench_tracking.py``). Variants: ``default`` (``SmoothingConfig()``), ``paper``
-(the paper's isotropic motion sigmas) and ``tilt-only`` (the tilt sigma without the vertical one).
+(the paper's isotropic motion sigmas), ``tilt-only`` (the tilt sigma without the vertical one) and
+``two-sided`` (without ``degenerate_one_sided``).
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ VARIANTS = {
     "default": SmoothingConfig(),
     "paper": SmoothingConfig(motion_vertical_sigma=None, motion_tilt_sigma=None),
     "tilt-only": SmoothingConfig(motion_vertical_sigma=None),
+    "two-sided": SmoothingConfig(degenerate_one_sided=False),
 }
 
 
@@ -77,7 +79,7 @@ def _smoothed_poses(inst: InstanceTrack, times: np.ndarray, config: SmoothingCon
     covariances = translation_covariances(
         inst.canonical_points, inst.point_frames, len(times), config.measurement_trans_sigma,
         config.degenerate_ratio, config.degenerate_sigma, config.degenerate_min_anchor_frames,
-        config.degenerate_min_frame_points, config.degenerate_min_facing_points)
+        config.degenerate_min_frame_points, config.degenerate_min_facing_points, config.degenerate_one_sided)
     sm = smooth_trajectory(inst.measurement_times(times), inst.poses, inst.valid, config, covariances)
     out = {}
     for k in np.flatnonzero(inst.valid):

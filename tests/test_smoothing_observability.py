@@ -12,7 +12,13 @@ from idsplat_ns.data.geometry import rot_z
 from idsplat_ns.errors import IDSplatError
 from idsplat_ns.instances.amodal_centre import box_heading
 from idsplat_ns.instances.smoothing import SmoothingConfig, smooth_trajectory
-from idsplat_ns.instances.smoothing.observability import frame_information, measured_axes, translation_covariances
+from idsplat_ns.instances.registration import frame_surface_normals
+from idsplat_ns.instances.smoothing.observability import (
+    frame_information,
+    measured_axes,
+    one_sided_directions,
+    translation_covariances,
+)
 
 LENGTH, WIDTH, HEIGHT = 4.5, 1.8, 1.4
 
@@ -107,6 +113,65 @@ def test_slid_side_views_are_smoothed_back_by_the_motion_and_do_not_end_the_span
     # distance: a slide along what a frame does not measure counts for little.
     assert np.linalg.norm(informed.poses[0, :3, 3] - measured[0, :3, 3]) > config.span_max_distance
     assert informed.span[0] == pytest.approx(times[0])
+
+
+def _front_then_rear(rng: np.random.Generator, fronts: int = 4, rears: int = 8, both: int | None = None):
+    """A car that overtakes close: its side and front in the first frames, its side and rear in
+    the rest (``both``: that frame sees front and rear). Returns points [N, 3], frames [N]."""
+    chunks = [np.concatenate([side(rng, 80), front(rng, 50)]) for _ in range(fronts)]
+    chunks += [np.concatenate([side(rng, 80), rear(rng, 50)]) for _ in range(rears)]
+    if both is not None:
+        chunks[both] = np.concatenate([side(rng, 80), front(rng, 50), rear(rng, 50)])
+    return np.concatenate(chunks), np.repeat(np.arange(len(chunks)), [len(c) for c in chunks])
+
+
+def test_front_frames_never_seen_with_the_rear_are_free_along_the_car():
+    rng = np.random.default_rng(3)
+    sigma, big = 0.2, 3.0
+    points, frames = _front_then_rear(rng)
+    directions = one_sided_directions(points, frames, frame_surface_normals(points, frames), 12)
+    for f in range(4):  # the minority: along the car (x) only
+        assert len(directions[f]) == 1 and abs(directions[f][0][0]) > 0.99
+    assert all(len(directions[f]) == 0 for f in range(4, 12))
+    cov = translation_covariances(points, frames, 12, sigma, 0.2, big)
+    for f in range(4):  # 3 m along the car's axis as its faces give it (within a few degrees of x)
+        values, vectors = np.linalg.eigh(cov[f])
+        np.testing.assert_allclose(np.sqrt(values), [sigma, sigma, big], rtol=1e-6)
+        assert abs(vectors[0, 2]) > 0.99
+    np.testing.assert_allclose(cov[4:], np.tile(np.eye(3) * sigma**2, (8, 1, 1)), atol=1e-9)
+    # The paper's view (and ours without the rule): the front measures the length.
+    plain = translation_covariances(points, frames, 12, sigma, 0.2, big, one_sided_faces=False)
+    np.testing.assert_allclose(plain, np.tile(np.eye(3) * sigma**2, (12, 1, 1)), atol=1e-9)
+
+
+def test_one_frame_with_front_and_rear_ties_them_and_equal_groups_have_no_majority():
+    rng = np.random.default_rng(4)
+    points, frames = _front_then_rear(rng, both=5)
+    normals = frame_surface_normals(points, frames)
+    assert all(len(d) == 0 for d in one_sided_directions(points, frames, normals, 12))
+    points, frames = _front_then_rear(rng, fronts=5, rears=5)
+    normals = frame_surface_normals(points, frames)
+    assert all(len(d) == 0 for d in one_sided_directions(points, frames, normals, 10))
+
+
+def test_front_frames_registered_ahead_are_smoothed_back_by_the_rear_frames_motion():
+    """Seed 9's overtaking car: merged through its side, the front frames registered 0.6-0.2 m
+    ahead of the rear ones. Left to the motion along the car, they follow the rear frames' speed."""
+    rng = np.random.default_rng(5)
+    times, truth, heading = _straight_car(speed=12.0)
+    measured = truth.copy()
+    measured[:4, :3, 3] += np.array([0.6, 0.5, 0.4, 0.3])[:, None] * heading
+    points, frames = _front_then_rear(rng, fronts=4, rears=len(times) - 4)
+    config = SmoothingConfig()
+    valid = np.ones(len(times), bool)
+    errors = {}
+    for one_sided in (False, True):
+        cov = translation_covariances(points, frames, len(times), config.measurement_trans_sigma,
+                                      config.degenerate_ratio, config.degenerate_sigma, one_sided_faces=one_sided)
+        sm = smooth_trajectory(times, measured, valid, config, cov)
+        errors[one_sided] = np.linalg.norm(sm.poses[:4, :3, 3] - truth[:4, :3, 3], axis=1).max()
+    assert errors[False] > 0.3
+    assert errors[True] < 0.1
 
 
 def test_translation_covariances_of_wrong_shape_are_a_clear_error():

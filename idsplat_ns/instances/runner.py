@@ -42,8 +42,9 @@ LIFTING_FORMAT = 2
 # origin's mean travel direction; 6: hypotheses that tilt the vehicle are not considered; 7: the
 # fewest frames of either part dropped to link a segment).
 REGISTRATION_VERSION = 7
-# The same for the smoothing stage (2: translations not measured by a frame's surfaces).
-SMOOTHING_VERSION = 3
+# The same for the smoothing stage (2: translations not measured by a frame's surfaces; 3: tilt and
+# vertical motion sigmas; 4: one-sided faces left to the motion).
+SMOOTHING_VERSION = 4
 
 
 @dataclass(frozen=True)
@@ -134,7 +135,7 @@ def smooth_tracks(tracks: InstanceTracks, config: SmoothingConfig) -> InstanceTr
             covariances = translation_covariances(
                 inst.canonical_points, inst.point_frames, len(times), config.measurement_trans_sigma,
                 config.degenerate_ratio, config.degenerate_sigma, config.degenerate_min_anchor_frames,
-                config.degenerate_min_frame_points, config.degenerate_min_facing_points)
+                config.degenerate_min_frame_points, config.degenerate_min_facing_points, config.degenerate_one_sided)
         sm = smooth_trajectory(meas, inst.poses, inst.valid, config, covariances)
         lo, hi = sm.span
         slack = float(np.max(np.abs(meas - times)))  # frame times lie at most this far outside [lo, hi]

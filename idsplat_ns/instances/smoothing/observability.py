@@ -34,13 +34,68 @@ def frame_information(
     frames are no surface at that scale (a rear face registered a few centimetres apart in each
     frame is a slab, whose neighbourhoods gave 41% of a followed car's points a sideways normal
     where its own points gave 99% a rearward one)."""
-    out = np.zeros((num_frames, 3, 3))
     frames = np.asarray(point_frames, np.int64)
-    normals = frame_surface_normals(points, frames, k)
+    return _information(frame_surface_normals(points, frames, k), frames, num_frames)
+
+
+def _information(
+    normals: np.ndarray,  # [N, 3] unit surface normals (zero rows: no surface)
+    frames: np.ndarray,  # [N] int
+    num_frames: int,
+) -> np.ndarray:  # -> [F, 3, 3]
+    out = np.zeros((num_frames, 3, 3))
     for f in np.unique(frames):
         if 0 <= f < num_frames:
             own = normals[frames == f]
             out[f] = own.T @ own / len(own)
+    return out
+
+
+def one_sided_directions(
+    points: np.ndarray,  # [N, 3] canonical points of an instance
+    point_frames: np.ndarray,  # [N] int
+    normals: np.ndarray,  # [N, 3] each frame's own surface normals
+    num_frames: int,
+    min_frame_points: int = 24,
+    min_facing_points: float = 10.0,
+    min_anchor_frames: int = 2,
+) -> list[list[np.ndarray]]:  # -> per frame, unit directions [3] in the canonical frame
+    """Per frame, the instance axes it measures only through faces that the frames measuring them
+    elsewhere never see together with its own.
+
+    Along an axis of the instance (its faces' principal directions: a car's length, width and
+    height), a frame measures through the faces on one side of the middle or the other (a car's
+    front or its rear). When no frame sees both, nothing in the registrations ties the two faces
+    together: a car seen first from the front and side, then from the rear and side, was merged
+    through its side, along which it slides, and the two groups of frames disagree by how far it
+    slid (seed 9: the front frames 0.6 m ahead of the rear ones, the merged car 0.4 m short). The
+    smaller group is then left to the motion along that axis, where the larger one (at least
+    ``min_anchor_frames`` frames) measures it. A frame sees a side when its points facing the axis
+    there weigh ``min_facing_points`` (each point counts ``(n . u)^2``); frames under
+    ``min_frame_points`` points see nothing."""
+    points = np.asarray(points, np.float64)
+    frames = np.asarray(point_frames, np.int64)
+    inside = (frames >= 0) & (frames < num_frames)
+    out: list[list[np.ndarray]] = [[] for _ in range(num_frames)]
+    if not inside.any():
+        return out
+    points, frames, normals = points[inside], frames[inside], normals[inside]
+    usable = np.bincount(frames, minlength=num_frames) >= max(min_frame_points, 3)
+    _, axes = np.linalg.eigh(normals.T @ normals)
+    for u in axes.T:
+        along = points @ u
+        middle = float(np.median(along))
+        weight = (normals @ u) ** 2
+        high = usable & (np.bincount(frames, weight * (along >= middle), num_frames) >= min_facing_points)
+        low = usable & (np.bincount(frames, weight * (along < middle), num_frames) >= min_facing_points)
+        only_high, only_low = np.flatnonzero(high & ~low), np.flatnonzero(low & ~high)
+        if (high & low).any() or len(only_high) == len(only_low) or min(len(only_high), len(only_low)) == 0:
+            continue  # one side, the two tied by a frame, or no majority to follow
+        minority, majority = sorted((only_high, only_low), key=len)
+        if len(majority) < min_anchor_frames:
+            continue
+        for f in minority:
+            out[int(f)].append(u.copy())
     return out
 
 
@@ -72,6 +127,7 @@ def translation_covariances(
     min_anchor_frames: int = 2,
     min_frame_points: int = 24,
     min_facing_points: float = 10.0,
+    one_sided_faces: bool = True,
 ) -> np.ndarray:  # -> [F, 3, 3] canonical frame
     """Covariance of each frame's registered translation: ``sigma`` along the directions its
     surfaces measure, ``degenerate_sigma`` along those it does not but at least
@@ -85,10 +141,17 @@ def translation_covariances(
 
     The unmeasured directions of a frame form a subspace (a side view measures neither along nor
     up) whose eigenvectors are arbitrary within it; the anchored ones are found inside it, from
-    how many other frames measure each direction there (a frame measuring it counts 1)."""
+    how many other frames measure each direction there (a frame measuring it counts 1).
+
+    With ``one_sided_faces``, a frame's :func:`one_sided_directions` get ``degenerate_sigma`` too
+    (what it measures there is tied to the other frames through nothing but a slide)."""
     out = np.tile(np.eye(3) * sigma**2, (num_frames, 1, 1))
+    points = np.asarray(points, np.float64)
     frames = np.asarray(point_frames, np.int64)
-    information = frame_information(np.asarray(points, np.float64), frames, num_frames)
+    normals = frame_surface_normals(points, frames, 12)
+    information = _information(normals, frames, num_frames)
+    one_sided = (one_sided_directions(points, frames, normals, num_frames, min_frame_points, min_facing_points,
+                                      min_anchor_frames) if one_sided_faces else [[] for _ in range(num_frames)])
     numbers = np.bincount(frames[(frames >= 0) & (frames < num_frames)], minlength=num_frames)
     seen = [int(f) for f in np.flatnonzero(numbers > 0)]
     projectors = {}
@@ -101,11 +164,14 @@ def translation_covariances(
     total = sum((measured for measured, _ in projectors.values()), np.zeros((3, 3)))  # [3, 3]
     for f in seen:
         unmeasured = projectors[f][1]  # [3, K]
-        if unmeasured.shape[1] == 0:
-            continue
-        others = total - projectors[f][0]
-        counts, within = np.linalg.eigh(unmeasured.T @ others @ unmeasured)  # [K], [K, K]
-        directions = unmeasured @ within  # [3, K]
-        anchored = directions[:, counts >= min_anchor_frames - 1e-6]
-        out[f] += (degenerate_sigma**2 - sigma**2) * anchored @ anchored.T
+        free = np.zeros((3, 0))
+        if unmeasured.shape[1] > 0:
+            others = total - projectors[f][0]
+            counts, within = np.linalg.eigh(unmeasured.T @ others @ unmeasured)  # [K], [K, K]
+            free = (unmeasured @ within)[:, counts >= min_anchor_frames - 1e-6]  # [3, K'] orthonormal
+        for u in one_sided[f]:
+            rest = u - free @ (free.T @ u)  # the part of u not yet free
+            if np.linalg.norm(rest) > 0.7:
+                free = np.concatenate([free, (rest / np.linalg.norm(rest))[:, None]], 1)
+        out[f] += (degenerate_sigma**2 - sigma**2) * free @ free.T
     return out
