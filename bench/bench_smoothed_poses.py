@@ -121,7 +121,7 @@ def main() -> None:
             if all(v is not None for v in per_variant.values()):  # the same instances in every row
                 for name, v in per_variant.items():
                     results[name].append(v)
-    print(f"\n| variant | instances | mean 3D error m | median 3D error m | mean height error m | mean tilt error deg |")
+    print("\n| variant | instances | mean 3D error m | median 3D error m | mean height error m | mean tilt error deg |")
     print("|---|---|---|---|---|---|")
     for name, rows in results.items():
         a = np.array(rows)
