@@ -14,23 +14,19 @@ instances after the parked ones are converted (cached in ``--work``, the same la
 
 from __future__ import annotations
 
-import argparse
-import tempfile
-from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 from tqdm import tqdm
 
-from idsplat_ns.data.pandaset import load_sequence
-from idsplat_ns.data.split import split_frames
-from idsplat_ns.data.synthetic import generate_sequence
 from idsplat_ns.instances.amodal_centre import AmodalCentreConfig
 from idsplat_ns.instances.modes import builtin_mask_stand_in
 from idsplat_ns.instances.runner import PreprocessConfig, run_preprocessing
 from idsplat_ns.instances.smoothing import SmoothingConfig, smooth_trajectory
 from idsplat_ns.instances.smoothing.observability import translation_covariances
 from idsplat_ns.instances.tracks import InstanceTrack, InstanceTracks
+
+from _streets import street_arguments, training_streets  # bench/ is on the path when run as a script
 
 VARIANTS = {
     "default": SmoothingConfig(),
@@ -90,22 +86,12 @@ def _smoothed_poses(inst: InstanceTrack, times: np.ndarray, config: SmoothingCon
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--preset", default="small")
-    ap.add_argument("--seeds", type=int, nargs="+", default=[0])
-    ap.add_argument("--train-fraction", type=float, default=0.5)
-    ap.add_argument("--work", type=Path, default=None, help="folder for sequences and caches (default: temporary)")
-    args = ap.parse_args()
-    work = args.work or Path(tempfile.mkdtemp(prefix="idsplat_poses_"))
+    args = street_arguments(__doc__.splitlines()[0]).parse_args()
     results: dict[str, list] = {name: [] for name in VARIANTS}
-    for seed in tqdm(args.seeds, desc="streets"):
-        root = Path(generate_sequence(work / "seq", preset=args.preset, seed=seed, overwrite=False))
-        scene = load_sequence(root)
-        train_idx, _ = split_frames(scene.num_frames, args.train_fraction, None)
-        train = set(scene.frame_indices[train_idx].tolist())
+    for seed, scene, train, cache in tqdm(training_streets(args, "idsplat_poses_"), total=len(args.seeds), desc="streets"):
         # The smoother's input: registered, parked ones converted, no smoothing, origins as registered.
         config = builtin_mask_stand_in(scene, PreprocessConfig(smoothing=None, amodal=AmodalCentreConfig(enabled=False)))
-        registered = run_preprocessing(scene.subset(train), config, work / f"cache-{seed}", progress=False,
+        registered = run_preprocessing(scene.subset(train), config, cache, progress=False,
                                        verbose=False).tracks
         times = np.asarray(registered.frame_times, np.float64)
         for inst in registered.instances:

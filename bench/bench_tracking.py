@@ -11,21 +11,17 @@ Uses the same frames as training (the dataparser's split) and the same preproces
 
 from __future__ import annotations
 
-import argparse
-import tempfile
 import time
-from pathlib import Path
 
 import numpy as np
 
-from idsplat_ns.data.pandaset import load_sequence
-from idsplat_ns.data.split import split_frames
-from idsplat_ns.data.synthetic import generate_sequence
 from idsplat_ns.eval.tracking import aggregate
 from idsplat_ns.eval.trajectory_eval import flatten_metrics, tracking_summary
 from idsplat_ns.instances.modes import instance_tracks_for_mode
 from idsplat_ns.instances.runner import PreprocessConfig
 from idsplat_ns.model.trajectories import InstanceTrajectories
+
+from _streets import street_arguments, training_streets  # bench/ is on the path when run as a script
 
 
 def _object_rows(scene, tracks) -> list[str]:
@@ -59,21 +55,11 @@ def _object_rows(scene, tracks) -> list[str]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--preset", default="small")
-    ap.add_argument("--seeds", type=int, nargs="+", default=[0])
-    ap.add_argument("--train-fraction", type=float, default=0.5)
-    ap.add_argument("--work", type=Path, default=None, help="folder for sequences and caches (default: temporary)")
-    args = ap.parse_args()
-    work = args.work or Path(tempfile.mkdtemp(prefix="idsplat_track_"))
+    args = street_arguments(__doc__.splitlines()[0]).parse_args()
     per_seq, per_seq_all = [], []
-    for seed in args.seeds:
-        root = Path(generate_sequence(work / "seq", preset=args.preset, seed=seed, overwrite=False))
-        scene = load_sequence(root)
-        train_idx, _ = split_frames(scene.num_frames, args.train_fraction, None)
-        train = set(scene.frame_indices[train_idx].tolist())
+    for seed, scene, train, cache in training_streets(args, "idsplat_track_"):
         t0 = time.perf_counter()
-        tracks = instance_tracks_for_mode(scene, "self-supervised", train, PreprocessConfig(), work / f"cache-{seed}")
+        tracks = instance_tracks_for_mode(scene, "self-supervised", train, PreprocessConfig(), cache)
         seconds = time.perf_counter() - t0
         traj = InstanceTrajectories.from_instance_tracks(tracks)
         summary = tracking_summary(scene, traj.positions_at)
