@@ -190,7 +190,11 @@ def test_custom_factors_linearize_like_their_residuals() -> None:
     values.insert(F.SHARED_KEY, gtsam.Rot3(shared))
     factor = F.motion_factor(0, 0.1, config)
     err, H = motion_residual(pose0, pose1, 9.0, 0.03, shared, 0.1)
-    whiten = 1.0 / np.array([0.1] * 3 + [0.2] * 3)
+    # Roll/pitch and vertical sigmas apart from the paper's isotropic ones (SmoothingConfig's defaults).
+    np.testing.assert_allclose(F.motion_sigmas(config), [0.01, 0.01, 0.1, 0.2, 0.2, 0.02])
+    paper = SmoothingConfig(motion_vertical_sigma=None, motion_tilt_sigma=None)
+    np.testing.assert_allclose(F.motion_sigmas(paper), [0.1] * 3 + [0.2] * 3)
+    whiten = 1.0 / F.motion_sigmas(config)
     assert factor.error(values) == pytest.approx(0.5 * float(np.sum((err * whiten) ** 2)), rel=1e-12)
     A, b = factor.linearize(values).jacobian()
     np.testing.assert_allclose(A, np.hstack(H) * whiten[:, None], atol=1e-9)
