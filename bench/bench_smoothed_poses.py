@@ -21,9 +21,8 @@ from tqdm import tqdm
 
 from idsplat_ns.instances.amodal_centre import AmodalCentreConfig
 from idsplat_ns.instances.modes import builtin_mask_stand_in
-from idsplat_ns.instances.runner import PreprocessConfig, run_preprocessing
+from idsplat_ns.instances.runner import PreprocessConfig, measurement_covariances, run_preprocessing
 from idsplat_ns.instances.smoothing import SmoothingConfig, smooth_trajectory
-from idsplat_ns.instances.smoothing.observability import translation_covariances
 from idsplat_ns.instances.tracks import InstanceTrack, InstanceTracks
 
 from _streets import street_arguments, training_streets  # bench/ is on the path when run as a script
@@ -72,10 +71,7 @@ def _errors(poses: dict, boxes: list) -> tuple[float, float, float]:  # poses: s
 
 def _smoothed_poses(inst: InstanceTrack, times: np.ndarray, config: SmoothingConfig) -> dict:
     """Smoothed poses at the registered training frames (within the smoothed span)."""
-    covariances = translation_covariances(
-        inst.canonical_points, inst.point_frames, len(times), config.measurement_trans_sigma,
-        config.degenerate_ratio, config.degenerate_sigma, config.degenerate_min_anchor_frames,
-        config.degenerate_min_frame_points, config.degenerate_min_facing_points, config.degenerate_one_sided)
+    covariances = measurement_covariances(inst, len(times), config)
     sm = smooth_trajectory(inst.measurement_times(times), inst.poses, inst.valid, config, covariances)
     out = {}
     for k in np.flatnonzero(inst.valid):

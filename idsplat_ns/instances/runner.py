@@ -115,6 +115,20 @@ def _cached_file(path: Path, compute: Callable[[], object], save: Callable[[obje
     return result, False
 
 
+def measurement_covariances(
+    inst: InstanceTrack, num_frames: int, config: SmoothingConfig
+) -> Optional[np.ndarray]:  # -> [F, 3, 3] or None
+    """Translation covariance of each of ``inst``'s registrations from the surfaces its points show
+    (smoothing/observability.py, with ``config``'s ``degenerate_*`` settings), or None (the
+    paper's isotropic sigma) where that is switched off or the instance has no per-frame points."""
+    if not config.degenerate_directions or inst.point_frames is None:
+        return None
+    return translation_covariances(
+        inst.canonical_points, inst.point_frames, num_frames, config.measurement_trans_sigma,
+        config.degenerate_ratio, config.degenerate_sigma, config.degenerate_min_anchor_frames,
+        config.degenerate_min_frame_points, config.degenerate_min_facing_points, config.degenerate_one_sided)
+
+
 def smooth_tracks(tracks: InstanceTracks, config: SmoothingConfig) -> InstanceTracks:
     """Replace each dynamic instance's poses by smoothed ones at the frame times (valid within the
     measured span).
@@ -130,13 +144,7 @@ def smooth_tracks(tracks: InstanceTracks, config: SmoothingConfig) -> InstanceTr
     times = np.asarray(tracks.frame_times, np.float64)
     for inst in tracks.instances:
         meas = inst.measurement_times(times) if config.measurement_times else times
-        covariances = None
-        if config.degenerate_directions and inst.point_frames is not None:
-            covariances = translation_covariances(
-                inst.canonical_points, inst.point_frames, len(times), config.measurement_trans_sigma,
-                config.degenerate_ratio, config.degenerate_sigma, config.degenerate_min_anchor_frames,
-                config.degenerate_min_frame_points, config.degenerate_min_facing_points, config.degenerate_one_sided)
-        sm = smooth_trajectory(meas, inst.poses, inst.valid, config, covariances)
+        sm = smooth_trajectory(meas, inst.poses, inst.valid, config, measurement_covariances(inst, len(times), config))
         lo, hi = sm.span
         slack = float(np.max(np.abs(meas - times)))  # frame times lie at most this far outside [lo, hi]
         valid = (meas >= lo) & (meas <= hi)
