@@ -16,7 +16,7 @@ import numpy as np
 from idsplat_ns.data.geometry import interpolate_poses
 from idsplat_ns.data.scene import Scene
 from idsplat_ns.errors import IDSplatError
-from idsplat_ns.instances.amodal_centre import AmodalCentreConfig, complete_centres
+from idsplat_ns.instances.amodal_centre import AmodalCentreConfig, box_heading, complete_centres, travel_direction
 from idsplat_ns.instances.cache import atomic_path, hash_json, remove_stale_temporaries, scene_fingerprint
 from idsplat_ns.instances.features.base import PointFeatures
 from idsplat_ns.instances.smoothing import SmoothingConfig, smooth_trajectory
@@ -44,7 +44,7 @@ LIFTING_FORMAT = 2
 REGISTRATION_VERSION = 7
 # The same for the smoothing stage (2: translations not measured by a frame's surfaces; 3: tilt and
 # vertical motion sigmas; 4: one-sided faces left to the motion).
-SMOOTHING_VERSION = 4
+SMOOTHING_VERSION = 5
 
 
 @dataclass(frozen=True)
@@ -126,7 +126,26 @@ def measurement_covariances(
     return translation_covariances(
         inst.canonical_points, inst.point_frames, num_frames, config.measurement_trans_sigma,
         config.degenerate_ratio, config.degenerate_sigma, config.degenerate_min_anchor_frames,
-        config.degenerate_min_frame_points, config.degenerate_min_facing_points, config.degenerate_one_sided)
+        config.degenerate_min_frame_points, config.degenerate_min_facing_points, config.degenerate_one_sided,
+        config.degenerate_vertical_sigma)
+
+
+def instance_heading(inst: InstanceTrack, min_points: int = 100) -> Optional[np.ndarray]:  # -> [3] canonical, or None
+    """The vehicle's box axis nearest its direction of travel, in the canonical frame, from the
+    vertical faces of its registered points (``amodal_centre.box_heading``); None when it barely
+    moves, has no per-frame points or fewer than ``min_points`` points."""
+    forward = travel_direction(inst.poses, inst.valid)
+    if forward is None or inst.point_frames is None or len(inst.canonical_points) < max(min_points, 3):
+        return None
+    return box_heading(inst.canonical_points, forward, inst.point_frames)
+
+
+def smooth_instance(inst: InstanceTrack, times: np.ndarray, config: SmoothingConfig) -> SmoothedTrajectory:
+    """Smooth one instance's registrations placed at ``times`` [F] (seconds), with the translation
+    covariances of its views and the heading prior of its box axis, as ``config`` asks."""
+    heading = instance_heading(inst, config.heading_prior_min_points) if config.heading_prior_sigma is not None else None
+    return smooth_trajectory(times, inst.poses, inst.valid, config,
+                             measurement_covariances(inst, len(times), config), heading)
 
 
 def smooth_tracks(tracks: InstanceTracks, config: SmoothingConfig) -> InstanceTracks:
@@ -144,7 +163,7 @@ def smooth_tracks(tracks: InstanceTracks, config: SmoothingConfig) -> InstanceTr
     times = np.asarray(tracks.frame_times, np.float64)
     for inst in tracks.instances:
         meas = inst.measurement_times(times) if config.measurement_times else times
-        sm = smooth_trajectory(meas, inst.poses, inst.valid, config, measurement_covariances(inst, len(times), config))
+        sm = smooth_instance(inst, meas, config)
         lo, hi = sm.span
         slack = float(np.max(np.abs(meas - times)))  # frame times lie at most this far outside [lo, hi]
         valid = (meas >= lo) & (meas <= hi)

@@ -160,3 +160,14 @@ def weak_shared_rotation_prior_factor(shared: np.ndarray, config: SmoothingConfi
     return gtsam.PriorFactorRot3(
         SHARED_KEY, gtsam.Rot3(shared), gtsam.noiseModel.Isotropic.Sigma(3, config.weak_shared_rotation_sigma)
     )
+
+
+def heading_prior_factor(heading_yaw: float, config: SmoothingConfig) -> gtsam.PriorFactorRot3:
+    """Prior that the shared rotation's x axis (the direction of travel in the canonical frame)
+    points at ``heading_yaw`` [rad] about the canonical z axis; its tilt is left to the other
+    factors (the prior's roll and pitch sigmas are ``weak_shared_rotation_sigma``)."""
+    assert config.heading_prior_sigma is not None
+    weak = config.weak_shared_rotation_sigma
+    sigmas = np.array([weak, weak, config.heading_prior_sigma])
+    target = gtsam.Rot3.Yaw(heading_yaw)
+    return gtsam.PriorFactorRot3(SHARED_KEY, target, gtsam.noiseModel.Diagonal.Sigmas(sigmas))

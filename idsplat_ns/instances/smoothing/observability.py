@@ -128,6 +128,7 @@ def translation_covariances(
     min_frame_points: int = 24,
     min_facing_points: float = 10.0,
     one_sided_faces: bool = True,
+    vertical_sigma: float | None = None,
 ) -> np.ndarray:  # -> [F, 3, 3] canonical frame
     """Covariance of each frame's registered translation: ``sigma`` along the directions its
     surfaces measure, ``degenerate_sigma`` along those it does not but at least
@@ -144,7 +145,10 @@ def translation_covariances(
     how many other frames measure each direction there (a frame measuring it counts 1).
 
     With ``one_sided_faces``, a frame's :func:`one_sided_directions` get ``degenerate_sigma`` too
-    (what it measures there is tied to the other frames through nothing but a slide)."""
+    (what it measures there is tied to the other frames through nothing but a slide).
+
+    With ``vertical_sigma``, a frame's variance along the canonical vertical is capped at its
+    square (information is added along z where a slide left it larger)."""
     out = np.tile(np.eye(3) * sigma**2, (num_frames, 1, 1))
     points = np.asarray(points, np.float64)
     frames = np.asarray(point_frames, np.int64)
@@ -174,4 +178,19 @@ def translation_covariances(
             if np.linalg.norm(rest) > 0.7:
                 free = np.concatenate([free, (rest / np.linalg.norm(rest))[:, None]], 1)
         out[f] += (degenerate_sigma**2 - sigma**2) * free @ free.T
+        if vertical_sigma is not None:
+            out[f] = cap_vertical_variance(out[f], vertical_sigma)
     return out
+
+
+def cap_vertical_variance(covariance: np.ndarray, sigma: float) -> np.ndarray:  # [3, 3] -> [3, 3]
+    """``covariance`` with information added along z so that its z variance is at most
+    ``sigma**2`` (Sherman-Morrison: adding ``a e e^T`` to the information turns a variance ``c``
+    along ``e`` into ``c / (1 + a c)``); unchanged where it already is."""
+    c = float(covariance[2, 2])
+    if c <= sigma**2:
+        return covariance
+    e = np.array([0.0, 0.0, 1.0])
+    a = 1.0 / sigma**2 - 1.0 / c
+    Ce = covariance @ e
+    return covariance - a * np.outer(Ce, Ce) / (1.0 + a * c)

@@ -183,6 +183,7 @@ def _build_graph(
     init: _InitialGuess,
     config: SmoothingConfig,
     covariances: list[np.ndarray | None],  # per step: [3, 3] translation covariance, or None (config's)
+    heading: np.ndarray | None = None,  # [3] the vehicle's box axis in the canonical frame
 ) -> gtsam.NonlinearFactorGraph:
     graph = gtsam.NonlinearFactorGraph()
     for t in np.flatnonzero(use):
@@ -197,7 +198,18 @@ def _build_graph(
         graph.add(F.curvature_walk_factor(t, dt, config))
     graph.add(F.weak_speed_prior_factor(float(init.speeds[0]), config))
     graph.add(F.weak_shared_rotation_prior_factor(init.shared, config))
+    if heading is not None and config.heading_prior_sigma is not None:
+        graph.add(F.heading_prior_factor(heading_yaw_near(heading, init.shared), config))
     return graph
+
+
+def heading_yaw_near(heading: np.ndarray, shared: np.ndarray) -> float:  # heading: [3], shared: [3, 3]
+    """Yaw [rad] of the box axis ``heading`` (canonical frame), flipped by 180 degrees if that
+    brings it nearer the shared rotation's x axis (an axis has two directions; the travel
+    direction picks one: a car reversing keeps its box)."""
+    yaw = math.atan2(float(heading[1]), float(heading[0]))
+    travel = math.atan2(float(shared[1, 0]), float(shared[0, 0]))
+    return yaw if abs(float(wrap_angle(yaw - travel))) <= 0.5 * math.pi else float(wrap_angle(yaw + math.pi))
 
 
 def _values_from(init: _InitialGuess) -> gtsam.Values:
@@ -245,6 +257,7 @@ def smooth_trajectory(
     valid: np.ndarray,  # [T] bool, which measurements exist
     config: SmoothingConfig | None = None,
     translation_covariances: np.ndarray | None = None,  # [T, 3, 3] per measurement, its own frame (observability.py)
+    heading: np.ndarray | None = None,  # [3] the vehicle's box axis in the canonical frame (amodal_centre.box_heading)
 ) -> SmoothedTrajectory:
     """Robust coordinated-turn smoothing of one instance's measured poses.
 
@@ -253,6 +266,7 @@ def smooth_trajectory(
     rotation, the mask of measurements kept as inliers, and ``pose_at`` for any time in the span
     of the measurements. ``translation_covariances`` replace ``config.measurement_trans_sigma``
     per measurement (its translation is uncertain along directions its points do not measure).
+    ``heading``, with ``config.heading_prior_sigma``, ties the direction of travel to the box axis.
     Raises ValueError on malformed input (a programming error, not user input).
     """
     config = config or SmoothingConfig()
@@ -286,14 +300,14 @@ def smooth_trajectory(
         usable &= ~gross_yaw_outliers(measured, valid, config.gross_yaw_deviation)
     init = _initial_guess(times, measured, usable)
     values = _values_from(init)
-    first = _optimize(_build_graph(times, measured, usable, init, config, covariances), values,
+    first = _optimize(_build_graph(times, measured, usable, init, config, covariances, heading), values,
                       config.first_pass_iterations)
 
     errors, threshold, inliers = _flag_outliers(measured, valid, first, config, covariances)
     inliers &= usable
     if inliers.sum() < config.reconverge_below_inlier_fraction * usable.sum():
         # The single first iteration did not converge: iterate it before trusting its residuals.
-        first = _optimize(_build_graph(times, measured, usable, init, config, covariances), first,
+        first = _optimize(_build_graph(times, measured, usable, init, config, covariances, heading), first,
                           config.final_iterations)
         errors, threshold, inliers = _flag_outliers(measured, valid, first, config, covariances)
         inliers &= usable
@@ -301,7 +315,7 @@ def smooth_trajectory(
         # Everything looks wrong: keep the measurement that agrees best rather than none.
         inliers[int(np.nanargmin(errors))] = True
 
-    final = _optimize(_build_graph(times, measured, inliers, init, config, covariances), first, config.final_iterations)
+    final = _optimize(_build_graph(times, measured, inliers, init, config, covariances, heading), first, config.final_iterations)
 
     T = len(times)
     out_poses = np.empty((T, 4, 4))
