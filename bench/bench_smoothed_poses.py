@@ -1,7 +1,9 @@
 """Pose accuracy of the CT smoother's variants on the synthetic street: every registered instance
 that follows an annotated box is smoothed with each variant, and its poses at the training frames
 are compared with the box (after the constant canonical-to-box offset that fits best: the
-canonical frame is arbitrary). Prints the mean 3D, height and tilt errors per variant.
+canonical frame is arbitrary; the box is the one holding most of the instance's points). Prints
+the mean 3D, height, tilt, yaw and box-corner errors per variant (the corners of the annotated
+box moved by the estimate: position and rotation weighed as a render of the vehicle weighs them).
 
     .venv/bin/python bench/bench_smoothed_poses.py --preset small --seeds 0 1 2 --work /tmp/trk
 
@@ -9,7 +11,7 @@ Registrations come from the same preprocessing as ``ns-train idsplat`` up to smo
 instances after the parked ones are converted (cached in ``--work``, the same layout as
 ``bench_tracking.py``). Variants: ``default`` (``SmoothingConfig()``), ``paper``
 (the paper's isotropic motion sigmas), ``tilt-only`` (the tilt sigma without the vertical one) and
-``two-sided`` (without ``degenerate_one_sided``). ``--variant NAME:FIELD=VALUE,...`` adds rows
+``two-sided`` (without ``degenerate_one_sided``), ``no-heading-prior``, ``no-vertical-cap``, ``no-turning-curvature``. ``--variant NAME:FIELD=VALUE,...`` adds rows
 (``SmoothingConfig`` fields; values are numbers, ``None``, ``True`` or ``False``), e.g.
 ``--variant loose-turns:curvature_sigma=1,curvature_walk_rate=0.05``.
 """
@@ -21,6 +23,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 from tqdm import tqdm
 
+from idsplat_ns.data.tracks import box_corners
 from idsplat_ns.eval.instance_pose_errors import match_instance
 from idsplat_ns.instances.amodal_centre import AmodalCentreConfig
 from idsplat_ns.instances.modes import builtin_mask_stand_in
@@ -37,6 +40,7 @@ VARIANTS = {
     "two-sided": SmoothingConfig(degenerate_one_sided=False),
     "no-heading-prior": SmoothingConfig(heading_prior_sigma=None),
     "no-vertical-cap": SmoothingConfig(degenerate_vertical_sigma=None),
+    "no-turning-curvature": SmoothingConfig(turning_curvature_sigma=None),
 }
 
 
@@ -56,23 +60,24 @@ def _parse_variant(text: str) -> tuple[str, SmoothingConfig]:
         raise SystemExit(f"--variant {text!r}: {exc}") from None
 
 
-def _matching_box_poses(inst: InstanceTrack, train_scene, tracks: InstanceTracks) -> list | None:
+def _matching_box_poses(inst: InstanceTrack, train_scene, tracks: InstanceTracks) -> tuple[list, np.ndarray] | None:
     """Per step the pose [4, 4] (or None) of the annotated box that holds most of the instance's
-    points at its canonical frame (``match_instance``), or None if no box does."""
+    points at its canonical frame (``match_instance``), and the box's size [3]; None if no box does."""
     index = match_instance(train_scene, inst)
     if index is None:
         return None
     box = train_scene.tracks[index]
-    return [box.pose_at_frame(int(f)) for f in tracks.frame_indices]
+    return [box.pose_at_frame(int(f)) for f in tracks.frame_indices], np.asarray(box.size, np.float64)
 
 
-def _errors(poses: dict, boxes: list) -> tuple[float, float, float, float]:  # poses: step -> [4, 4]
-    """Mean 3D [m], height [m], tilt [deg] and yaw [deg] error after the best constant offset."""
+def _errors(poses: dict, boxes: list, size: np.ndarray) -> tuple[float, ...]:  # poses: step -> [4, 4]
+    """Mean 3D [m], height [m], tilt [deg], yaw [deg] and box-corner [m] error after the best
+    constant offset (the corners weigh position and rotation as a render of the vehicle does)."""
     offsets = [np.linalg.inv(P) @ boxes[k] for k, P in poses.items()]
     C = np.eye(4)
     C[:3, 3] = np.mean([o[:3, 3] for o in offsets], axis=0)
     C[:3, :3] = Rotation.from_matrix(np.stack([o[:3, :3] for o in offsets])).mean().as_matrix()
-    e3, ez, et, ey = [], [], [], []
+    e3, ez, et, ey, ec = [], [], [], [], []
     for k, P in poses.items():
         X, B = P @ C, boxes[k]
         local = B[:3, :3].T @ (X[:3, 3] - B[:3, 3])
@@ -82,7 +87,8 @@ def _errors(poses: dict, boxes: list) -> tuple[float, float, float, float]:  # p
         ez.append(abs(local[2]))
         et.append(np.degrees(np.linalg.norm(tilt)))
         ey.append(np.degrees(abs(rotvec[2])))
-    return float(np.mean(e3)), float(np.mean(ez)), float(np.mean(et)), float(np.mean(ey))
+        ec.append(np.linalg.norm(box_corners(X, size) - box_corners(B, size), axis=1).mean())
+    return float(np.mean(e3)), float(np.mean(ez)), float(np.mean(et)), float(np.mean(ey)), float(np.mean(ec))
 
 
 def _smoothed_poses(inst: InstanceTrack, times: np.ndarray, config: SmoothingConfig) -> dict:
@@ -112,24 +118,25 @@ def main() -> None:
         for inst in registered.instances:
             if inst.num_valid < 3 or inst.point_frames is None:
                 continue
-            boxes = _matching_box_poses(inst, train_scene, registered)
-            if boxes is None:
+            matched = _matching_box_poses(inst, train_scene, registered)
+            if matched is None:
                 continue
+            boxes, size = matched
             per_variant = {}
             for name, config in variants.items():
                 poses = {k: P for k, P in _smoothed_poses(inst, times, config).items() if boxes[k] is not None}
-                per_variant[name] = _errors(poses, boxes) if len(poses) >= 3 else None
+                per_variant[name] = _errors(poses, boxes, size) if len(poses) >= 3 else None
             if all(v is not None for v in per_variant.values()):  # the same instances in every row
                 for name, v in per_variant.items():
                     results[name].append(v)
                 if args.per_instance:
                     print(f"seed {seed} instance {inst.instance_id}: " + "  ".join(
-                        f"{name} {v[0]:.3f} m {v[3]:.2f} deg" for name, v in per_variant.items()))
-    print("\n| variant | instances | mean 3D error m | median 3D error m | mean height error m | mean tilt error deg | mean yaw error deg |")
-    print("|---|---|---|---|---|---|---|")
+                        f"{name} {v[0]:.3f} m {v[3]:.2f} deg {v[4]:.3f} mc" for name, v in per_variant.items()))
+    print("\n| variant | instances | mean 3D error m | median 3D error m | mean height error m | mean tilt error deg | mean yaw error deg | mean corner error m |")
+    print("|---|---|---|---|---|---|---|---|")
     for name, rows in results.items():
         a = np.array(rows)
-        print(f"| {name} | {len(a)} | {a[:, 0].mean():.3f} | {np.median(a[:, 0]):.3f} | {a[:, 1].mean():.3f} | {a[:, 2].mean():.2f} | {a[:, 3].mean():.2f} |")
+        print(f"| {name} | {len(a)} | {a[:, 0].mean():.3f} | {np.median(a[:, 0]):.3f} | {a[:, 1].mean():.3f} | {a[:, 2].mean():.2f} | {a[:, 3].mean():.2f} | {a[:, 4].mean():.3f} |")
 
 
 if __name__ == "__main__":

@@ -365,7 +365,7 @@ def test_turn_with_half_turned_registrations_is_followed() -> None:
     assert result.span == (pytest.approx(times[0]), pytest.approx(times[17]))
     huber_only = smooth_trajectory(times, poses, valid, replace(SmoothingConfig(), gross_yaw_deviation=None))
     gap_huber = np.linalg.norm(huber_only.poses[good, :2, 3] - poses[good, :2, 3], axis=1)
-    assert gap_huber.max() > 3.0  # measured 9.6 m: the turn is lost
+    assert gap_huber.max() > 1.5  # measured 2.5 m (9.6 m with the paper's curvature prior): the turn is lost
 
 
 def _pitch_noisy_followed_car(seed: int, slope: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

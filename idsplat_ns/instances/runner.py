@@ -44,7 +44,7 @@ LIFTING_FORMAT = 2
 REGISTRATION_VERSION = 7
 # The same for the smoothing stage (2: translations not measured by a frame's surfaces; 3: tilt and
 # vertical motion sigmas; 4: one-sided faces left to the motion).
-SMOOTHING_VERSION = 5
+SMOOTHING_VERSION = 6
 
 
 @dataclass(frozen=True)

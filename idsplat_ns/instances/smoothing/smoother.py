@@ -8,7 +8,7 @@ pass 1's estimate without them for at most ``final_iterations`` iterations.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import gtsam
 import numpy as np
@@ -212,6 +212,25 @@ def heading_yaw_near(heading: np.ndarray, shared: np.ndarray) -> float:  # headi
     return yaw if abs(float(wrap_angle(yaw - travel))) <= 0.5 * math.pi else float(wrap_angle(yaw + math.pi))
 
 
+def measured_heading_change(times: np.ndarray, poses: np.ndarray, valid: np.ndarray) -> float:
+    """Radians between the smallest and largest heading of the running median of the measured yaws
+    (unwrapped): how far the registrations say the vehicle turns (a single wrong yaw does not count)."""
+    idx = np.flatnonzero(valid)
+    if len(idx) < 2:
+        return 0.0
+    yaws = _running_median(np.unwrap(yaw_of(poses[idx])), _INIT_MEDIAN_HALF_WIDTH)
+    return float(np.max(yaws) - np.min(yaws))
+
+
+def turn_config(config: SmoothingConfig, heading_change: float) -> SmoothingConfig:
+    """``config`` with the turning curvature settings where the registrations turn at least
+    ``config.turning_min_heading_change`` radians, else ``config`` itself."""
+    if config.turning_curvature_sigma is None or heading_change < config.turning_min_heading_change:
+        return config
+    return replace(config, curvature_sigma=config.turning_curvature_sigma,
+                   curvature_walk_rate=config.turning_curvature_walk_rate)
+
+
 def _values_from(init: _InitialGuess) -> gtsam.Values:
     values = gtsam.Values()
     for t in range(len(init.speeds)):
@@ -299,6 +318,7 @@ def smooth_trajectory(
         # Half-turn registration errors pull the CT states into loops that Huber cannot undo.
         usable &= ~gross_yaw_outliers(measured, valid, config.gross_yaw_deviation)
     init = _initial_guess(times, measured, usable)
+    config = turn_config(config, measured_heading_change(times, measured, usable))
     values = _values_from(init)
     first = _optimize(_build_graph(times, measured, usable, init, config, covariances, heading), values,
                       config.first_pass_iterations)
