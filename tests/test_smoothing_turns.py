@@ -52,7 +52,7 @@ def test_a_turn_is_followed_by_the_curvature_and_lags_with_the_papers_prior():
         valid = np.ones(len(times), bool)
         valid[14:17] = False
         along_free = np.tile(np.diag([3.0**2, 0.2**2, 0.2**2]), (len(times), 1, 1))  # canonical x: forward
-        assert math.degrees(measured_heading_change(times, meas, valid)) == pytest.approx(90.0, abs=5.0)
+        assert math.degrees(measured_heading_change(meas, valid)) == pytest.approx(90.0, abs=5.0)
         ours = smooth_trajectory(times, meas, valid, None, along_free)
         theirs = smooth_trajectory(times, meas, valid, paper, along_free)
         assert _yaw_errors_deg(ours.poses, truth).max() < 2.4
@@ -68,7 +68,7 @@ def test_straight_vehicles_keep_the_papers_curvature_prior():
     times, truth, _ = ct_trajectory(steps=20, speed=10.0, accel=0.0, curvature=lambda t: 0.0)
     valid = np.ones(len(times), bool)
     config = SmoothingConfig()
-    assert measured_heading_change(times, truth, valid) == pytest.approx(0.0, abs=1e-9)
+    assert measured_heading_change(truth, valid) == pytest.approx(0.0, abs=1e-9)
     assert turn_config(config, 0.2) is config
     turning = turn_config(config, 1.0)
     assert (turning.curvature_sigma, turning.curvature_walk_rate) == (1.0, 0.05)
@@ -76,7 +76,7 @@ def test_straight_vehicles_keep_the_papers_curvature_prior():
     # One half-turned registration does not make a straight driver turn (running median).
     turned = truth.copy()
     turned[7, :3, :3] = turned[7, :3, :3] @ so3_exp(np.array([0.0, 0.0, math.pi / 2]))
-    assert math.degrees(measured_heading_change(times, turned, valid)) < 1.0
+    assert math.degrees(measured_heading_change(turned, valid)) < 1.0
 
 
 @pytest.mark.parametrize("field, value", [("turning_curvature_sigma", 0.0), ("turning_curvature_walk_rate", -1.0)])

@@ -43,7 +43,8 @@ LIFTING_FORMAT = 2
 # fewest frames of either part dropped to link a segment).
 REGISTRATION_VERSION = 7
 # The same for the smoothing stage (2: translations not measured by a frame's surfaces; 3: tilt and
-# vertical motion sigmas; 4: one-sided faces left to the motion).
+# vertical motion sigmas; 4: one-sided faces left to the motion; 5: heading prior and vertical cap;
+# 6: turning curvature).
 SMOOTHING_VERSION = 6
 
 

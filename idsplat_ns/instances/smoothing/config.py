@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Optional
 
@@ -48,14 +49,14 @@ class SmoothingConfig:
     (curvature all but constant), a turn is carried by the motion factor's rotation slack alone,
     and the heading lags into the turn and overshoots out of it: on the synthetic street a pickup
     turning 90 degrees in 2 s was up to 4.8 degrees off entering and 7.5 leaving it (seed 10, at
-    its training frames; at most 1.8 with these settings). Straight drivers keep the paper's prior: freed, the
-    curvature of a far bus with three kept measurements bent its path 12 degrees (seed 7).
-    None: the paper's prior for every vehicle."""
+    its training frames; at most 1.8 with these settings). Straight drivers keep the paper's
+    prior: freed, the curvature of a far bus with three kept measurements bent its path 12
+    degrees (seed 7). None: the paper's prior for every vehicle."""
     turning_curvature_walk_rate: float = 0.05
     """Random-walk rate of the curvature of a turning vehicle [1/m^2/s]: 0.07 1/m per 0.1 s step,
     a radius of 7 m reached within 0.2-0.5 s of entering a turn."""
-    turning_min_heading_change: float = 0.5235987755982988
-    """Radians (30 degrees) of measured heading change (running median of the registrations'
+    turning_min_heading_change: float = math.radians(30.0)
+    """Radians of measured heading change (running median of the registrations'
     yaws, smallest to largest) from which a vehicle counts as turning."""
     outlier_threshold: float = 1.345
     """Measurements whose whitened error (after the first pass) exceeds this are dropped."""

@@ -212,7 +212,7 @@ def heading_yaw_near(heading: np.ndarray, shared: np.ndarray) -> float:  # headi
     return yaw if abs(float(wrap_angle(yaw - travel))) <= 0.5 * math.pi else float(wrap_angle(yaw + math.pi))
 
 
-def measured_heading_change(times: np.ndarray, poses: np.ndarray, valid: np.ndarray) -> float:
+def measured_heading_change(poses: np.ndarray, valid: np.ndarray) -> float:  # poses: [T, 4, 4], valid: [T]
     """Radians between the smallest and largest heading of the running median of the measured yaws
     (unwrapped): how far the registrations say the vehicle turns (a single wrong yaw does not count)."""
     idx = np.flatnonzero(valid)
@@ -318,7 +318,7 @@ def smooth_trajectory(
         # Half-turn registration errors pull the CT states into loops that Huber cannot undo.
         usable &= ~gross_yaw_outliers(measured, valid, config.gross_yaw_deviation)
     init = _initial_guess(times, measured, usable)
-    config = turn_config(config, measured_heading_change(times, measured, usable))
+    config = turn_config(config, measured_heading_change(measured, usable))
     values = _values_from(init)
     first = _optimize(_build_graph(times, measured, usable, init, config, covariances, heading), values,
                       config.first_pass_iterations)
