@@ -24,6 +24,7 @@ from scipy.spatial.transform import Rotation
 from tqdm import tqdm
 
 from idsplat_ns.data.tracks import box_corners
+from idsplat_ns.errors import IDSplatError
 from idsplat_ns.eval.instance_pose_errors import match_instance
 from idsplat_ns.instances.amodal_centre import AmodalCentreConfig
 from idsplat_ns.instances.modes import builtin_mask_stand_in
@@ -47,16 +48,16 @@ VARIANTS = {
 def _parse_variant(text: str) -> tuple[str, SmoothingConfig]:
     """``NAME:FIELD=VALUE,...`` -> (name, config); a one-line error names the bad part."""
     name, _, body = text.partition(":")
+    literals = {"None": None, "True": True, "False": False}
     fields = {}
-    for item in filter(None, body.split(",")):
-        key, eq, value = item.partition("=")
-        if not eq:
-            raise SystemExit(f"--variant {text!r}: expected FIELD=VALUE, got {item!r}")
-        literals = {"None": None, "True": True, "False": False}
-        fields[key] = literals[value] if value in literals else int(value) if value.lstrip("-").isdigit() else float(value)
     try:
+        for item in filter(None, body.split(",")):
+            key, eq, value = item.partition("=")
+            if not eq:
+                raise ValueError(f"expected FIELD=VALUE, got {item!r}")
+            fields[key] = literals[value] if value in literals else int(value) if value.lstrip("-").isdigit() else float(value)
         return name, SmoothingConfig(**fields)
-    except TypeError as exc:
+    except (TypeError, ValueError, IDSplatError) as exc:
         raise SystemExit(f"--variant {text!r}: {exc}") from None
 
 
