@@ -28,7 +28,7 @@ from idsplat_ns.errors import IDSplatError
 from idsplat_ns.eval.instance_pose_errors import match_instance
 from idsplat_ns.instances.amodal_centre import AmodalCentreConfig
 from idsplat_ns.instances.modes import builtin_mask_stand_in
-from idsplat_ns.instances.runner import PreprocessConfig, run_preprocessing, smooth_instance
+from idsplat_ns.instances.runner import PreprocessConfig, registration_times, run_preprocessing, smooth_instance
 from idsplat_ns.instances.smoothing import SmoothingConfig
 from idsplat_ns.instances.tracks import InstanceTrack, InstanceTracks
 
@@ -94,7 +94,7 @@ def _errors(poses: dict, boxes: list, size: np.ndarray) -> tuple[float, ...]:  #
 
 def _smoothed_poses(inst: InstanceTrack, times: np.ndarray, config: SmoothingConfig) -> dict:
     """Smoothed poses at the registered training frames (within the smoothed span)."""
-    sm = smooth_instance(inst, inst.measurement_times(times), config)
+    sm = smooth_instance(inst, registration_times(inst, times, config), config)
     out = {}
     for k in np.flatnonzero(inst.valid):
         pose = sm.pose_at(float(times[k]), margin=0.1)

@@ -117,7 +117,8 @@ def test_instance_heading_needs_enough_points():
     skew = rot_z(math.radians(5.0))[:3, :3]  # the box is turned 5 degrees from the travel direction
     chunks = [np.concatenate([side(rng, 40), front(rng, 30)]) @ skew.T for _ in range(6)]
     points, frames = np.concatenate(chunks), np.repeat(np.arange(6), [len(c) for c in chunks])
-    heading = instance_heading(_instance(points, frames))
+    min_points = SmoothingConfig().heading_prior_min_points  # 100
+    heading = instance_heading(_instance(points, frames), min_points)
     assert math.degrees(math.atan2(heading[1], heading[0])) == pytest.approx(5.0, abs=0.5)
     few = frames < 1  # 70 points
-    assert instance_heading(_instance(points[few], frames[few])) is None
+    assert instance_heading(_instance(points[few], frames[few]), min_points) is None

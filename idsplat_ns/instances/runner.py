@@ -131,7 +131,7 @@ def measurement_covariances(
         config.degenerate_vertical_sigma)
 
 
-def instance_heading(inst: InstanceTrack, min_points: int = 100) -> Optional[np.ndarray]:  # -> [3] canonical, or None
+def instance_heading(inst: InstanceTrack, min_points: int) -> Optional[np.ndarray]:  # -> [3] canonical, or None
     """The vehicle's box axis nearest its direction of travel, in the canonical frame, from the
     vertical faces of its registered points (``amodal_centre.box_heading``); None when it barely
     moves, has no per-frame points or fewer than ``min_points`` points."""
@@ -139,6 +139,12 @@ def instance_heading(inst: InstanceTrack, min_points: int = 100) -> Optional[np.
     if forward is None or inst.point_frames is None or len(inst.canonical_points) < max(min_points, 3):
         return None
     return box_heading(inst.canonical_points, forward, inst.point_frames)
+
+
+def registration_times(inst: InstanceTrack, frame_times: np.ndarray, config: SmoothingConfig) -> np.ndarray:  # [F] -> [F]
+    """When each of ``inst``'s registrations is placed for smoothing: its points' mean ray time
+    (``config.measurement_times``) or the frame time."""
+    return inst.measurement_times(frame_times) if config.measurement_times else frame_times
 
 
 def smooth_instance(inst: InstanceTrack, times: np.ndarray, config: SmoothingConfig) -> SmoothedTrajectory:
@@ -163,7 +169,7 @@ def smooth_tracks(tracks: InstanceTracks, config: SmoothingConfig) -> InstanceTr
     out = []
     times = np.asarray(tracks.frame_times, np.float64)
     for inst in tracks.instances:
-        meas = inst.measurement_times(times) if config.measurement_times else times
+        meas = registration_times(inst, times, config)
         sm = smooth_instance(inst, meas, config)
         lo, hi = sm.span
         slack = float(np.max(np.abs(meas - times)))  # frame times lie at most this far outside [lo, hi]

@@ -134,14 +134,18 @@ def gross_yaw_outliers(
     return out
 
 
+def _median_yaws(poses: np.ndarray, valid: np.ndarray) -> np.ndarray:  # poses: [T, 4, 4], valid: [T] -> [M]
+    """Running median of the valid measurements' unwrapped yaws (robust to a single wrong one)."""
+    return _running_median(np.unwrap(yaw_of(poses[np.flatnonzero(valid)])), _INIT_MEDIAN_HALF_WIDTH)
+
+
 def _initial_guess(times: np.ndarray, poses: np.ndarray, valid: np.ndarray) -> _InitialGuess:
     """Robust start: running medians of measured positions and yaws, interpolated over gaps; the
     shared rotation from the direction of travel; speeds and curvatures by finite differences."""
     idx = np.flatnonzero(valid)
     t_meas = times[idx]
     pos = _running_median(poses[idx, :3, 3], _INIT_MEDIAN_HALF_WIDTH)
-    yaws = np.unwrap(yaw_of(poses[idx]))
-    yaws = _running_median(yaws, _INIT_MEDIAN_HALF_WIDTH)
+    yaws = _median_yaws(poses, valid)
     T = len(times)
     positions = np.stack([np.interp(times, t_meas, pos[:, a]) for a in range(3)], axis=1)
     yaw = np.interp(times, t_meas, yaws)
@@ -215,10 +219,9 @@ def heading_yaw_near(heading: np.ndarray, shared: np.ndarray) -> float:  # headi
 def measured_heading_change(poses: np.ndarray, valid: np.ndarray) -> float:  # poses: [T, 4, 4], valid: [T]
     """Radians between the smallest and largest heading of the running median of the measured yaws
     (unwrapped): how far the registrations say the vehicle turns (a single wrong yaw does not count)."""
-    idx = np.flatnonzero(valid)
-    if len(idx) < 2:
+    if np.count_nonzero(valid) < 2:
         return 0.0
-    yaws = _running_median(np.unwrap(yaw_of(poses[idx])), _INIT_MEDIAN_HALF_WIDTH)
+    yaws = _median_yaws(poses, valid)
     return float(np.max(yaws) - np.min(yaws))
 
 
