@@ -28,7 +28,9 @@ from idsplat_ns.errors import IDSplatError
 from idsplat_ns.eval.instance_pose_errors import match_instance
 from idsplat_ns.instances.amodal_centre import AmodalCentreConfig
 from idsplat_ns.instances.modes import builtin_mask_stand_in
-from idsplat_ns.instances.runner import PreprocessConfig, registration_times, run_preprocessing, smooth_instance
+from idsplat_ns.instances.ground import GroundSurface
+from idsplat_ns.instances.runner import (PreprocessConfig, ground_surface, registration_times, run_preprocessing,
+                                         smooth_instance)
 from idsplat_ns.instances.smoothing import SmoothingConfig
 from idsplat_ns.instances.tracks import InstanceTrack, InstanceTracks
 
@@ -42,6 +44,7 @@ VARIANTS = {
     "no-heading-prior": SmoothingConfig(heading_prior_sigma=None),
     "no-vertical-cap": SmoothingConfig(degenerate_vertical_sigma=None),
     "no-turning-curvature": SmoothingConfig(turning_curvature_sigma=None),
+    "no-ground": SmoothingConfig(ground_height_walk_rate=None),
 }
 
 
@@ -92,9 +95,10 @@ def _errors(poses: dict, boxes: list, size: np.ndarray) -> tuple[float, ...]:  #
     return float(np.mean(e3)), float(np.mean(ez)), float(np.mean(et)), float(np.mean(ey)), float(np.mean(ec))
 
 
-def _smoothed_poses(inst: InstanceTrack, times: np.ndarray, config: SmoothingConfig) -> dict:
+def _smoothed_poses(inst: InstanceTrack, times: np.ndarray, config: SmoothingConfig,
+                    ground: GroundSurface | None) -> dict:
     """Smoothed poses at the registered training frames (within the smoothed span)."""
-    sm = smooth_instance(inst, registration_times(inst, times, config), config)
+    sm = smooth_instance(inst, registration_times(inst, times, config), config, ground)
     out = {}
     for k in np.flatnonzero(inst.valid):
         pose = sm.pose_at(float(times[k]), margin=0.1)
@@ -116,6 +120,11 @@ def main() -> None:
         train_scene = scene.subset(train)
         registered = run_preprocessing(train_scene, config, cache, progress=False, verbose=False).tracks
         times = np.asarray(registered.frame_times, np.float64)
+        grounds: dict = {}  # one lidar ground per ground setting of the variants
+        for config in variants.values():
+            key = repr(config.ground) if config.ground_height_walk_rate is not None else None
+            if key not in grounds:
+                grounds[key] = ground_surface(train_scene, config)
         for inst in registered.instances:
             if inst.num_valid < 3 or inst.point_frames is None:
                 continue
@@ -125,7 +134,8 @@ def main() -> None:
             boxes, size = matched
             per_variant = {}
             for name, config in variants.items():
-                poses = {k: P for k, P in _smoothed_poses(inst, times, config).items() if boxes[k] is not None}
+                ground = grounds[repr(config.ground) if config.ground_height_walk_rate is not None else None]
+                poses = {k: P for k, P in _smoothed_poses(inst, times, config, ground).items() if boxes[k] is not None}
                 per_variant[name] = _errors(poses, boxes, size) if len(poses) >= 3 else None
             if all(v is not None for v in per_variant.values()):  # the same instances in every row
                 for name, v in per_variant.items():

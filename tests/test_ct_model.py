@@ -17,6 +17,7 @@ from idsplat_ns.instances.smoothing.ct_model import (
     ct_increment,
     ct_increment_jacobian,
     ct_propagate,
+    ground_height_residual,
     motion_residual,
     roll_pitch,
     so3_right_jacobian_inv,
@@ -199,3 +200,21 @@ def test_custom_factors_linearize_like_their_residuals() -> None:
     A, b = factor.linearize(values).jacobian()
     np.testing.assert_allclose(A, np.hstack(H) * whiten[:, None], atol=1e-9)
     np.testing.assert_allclose(b, -err * whiten, atol=1e-12)
+
+
+def test_ground_height_residual_values_and_jacobians() -> None:
+    """The height change beyond the ground's rise, and its Jacobians against finite differences
+    in GTSAM's Pose3 chart; the CustomFactor hands GTSAM the same whitened ones."""
+    rng = np.random.default_rng(7)
+    pose0, pose1 = _random_pose(rng), _random_pose(rng)
+    err, H = ground_height_residual(pose0, pose1, 0.3)
+    assert err[0] == pytest.approx(pose1[2, 3] - pose0[2, 3] - 0.3, abs=1e-15)
+    np.testing.assert_allclose(H[0], _pose_fd(lambda P: ground_height_residual(P, pose1, 0.3, False)[0], pose0), atol=1e-7)
+    np.testing.assert_allclose(H[1], _pose_fd(lambda P: ground_height_residual(pose0, P, 0.3, False)[0], pose1), atol=1e-7)
+    values = gtsam.Values()
+    values.insert(F.pose_key(3), gtsam.Pose3(pose0))
+    values.insert(F.pose_key(4), gtsam.Pose3(pose1))
+    factor = F.ground_height_factor(3, 0.3, 0.05)
+    A, b = factor.linearize(values).jacobian()
+    np.testing.assert_allclose(A, np.hstack(H) / 0.05, atol=1e-9)
+    np.testing.assert_allclose(b, -err / 0.05, atol=1e-12)

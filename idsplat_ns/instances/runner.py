@@ -19,6 +19,7 @@ from idsplat_ns.errors import IDSplatError
 from idsplat_ns.instances.amodal_centre import AmodalCentreConfig, box_heading, complete_centres, travel_direction
 from idsplat_ns.instances.cache import atomic_path, hash_json, remove_stale_temporaries, scene_fingerprint
 from idsplat_ns.instances.features.base import PointFeatures
+from idsplat_ns.instances.ground import GroundSurface
 from idsplat_ns.instances.smoothing import SmoothingConfig, smooth_trajectory
 from idsplat_ns.instances.smoothing.observability import translation_covariances
 from idsplat_ns.instances.smoothing.smoother import SmoothedTrajectory
@@ -44,8 +45,8 @@ LIFTING_FORMAT = 2
 REGISTRATION_VERSION = 7
 # The same for the smoothing stage (2: translations not measured by a frame's surfaces; 3: tilt and
 # vertical motion sigmas; 4: one-sided faces left to the motion; 5: heading prior and vertical cap;
-# 6: turning curvature).
-SMOOTHING_VERSION = 6
+# 6: turning curvature; 7: lidar ground under the vehicles, sparse views left to the motion).
+SMOOTHING_VERSION = 7
 
 
 @dataclass(frozen=True)
@@ -117,18 +118,21 @@ def _cached_file(path: Path, compute: Callable[[], object], save: Callable[[obje
 
 
 def measurement_covariances(
-    inst: InstanceTrack, num_frames: int, config: SmoothingConfig
+    inst: InstanceTrack, num_frames: int, config: SmoothingConfig, has_heading: bool = False
 ) -> Optional[np.ndarray]:  # -> [F, 3, 3] or None
     """Translation covariance of each of ``inst``'s registrations from the surfaces its points show
     (smoothing/observability.py, with ``config``'s ``degenerate_*`` settings), or None (the
-    paper's isotropic sigma) where that is switched off or the instance has no per-frame points."""
+    paper's isotropic sigma) where that is switched off or the instance has no per-frame points.
+    ``has_heading``: the smoother ties the instance's travel to its box axis (heading prior), so
+    its sparse views' unmeasured directions can be left to the motion
+    (``config.degenerate_sparse_frame_points``)."""
     if not config.degenerate_directions or inst.point_frames is None:
         return None
     return translation_covariances(
         inst.canonical_points, inst.point_frames, num_frames, config.measurement_trans_sigma,
         config.degenerate_ratio, config.degenerate_sigma, config.degenerate_min_anchor_frames,
         config.degenerate_min_frame_points, config.degenerate_min_facing_points, config.degenerate_one_sided,
-        config.degenerate_vertical_sigma)
+        config.degenerate_vertical_sigma, config.degenerate_sparse_frame_points if has_heading else None)
 
 
 def instance_heading(inst: InstanceTrack, min_points: int) -> Optional[np.ndarray]:  # -> [3] canonical, or None
@@ -147,15 +151,26 @@ def registration_times(inst: InstanceTrack, frame_times: np.ndarray, config: Smo
     return inst.measurement_times(frame_times) if config.measurement_times else frame_times
 
 
-def smooth_instance(inst: InstanceTrack, times: np.ndarray, config: SmoothingConfig) -> SmoothedTrajectory:
+def ground_surface(scene: Scene, config: SmoothingConfig) -> Optional[GroundSurface]:
+    """The lidar ground the smoother keeps vehicles on, or None where ``config`` does not ask for
+    it or the scene has no lidar."""
+    if config.ground_height_walk_rate is None or not scene.has_lidar:
+        return None
+    return GroundSurface.from_sweeps(scene.lidar, config.ground)
+
+
+def smooth_instance(inst: InstanceTrack, times: np.ndarray, config: SmoothingConfig,
+                    ground: Optional[GroundSurface] = None) -> SmoothedTrajectory:
     """Smooth one instance's registrations placed at ``times`` [F] (seconds), with the translation
-    covariances of its views and the heading prior of its box axis, as ``config`` asks."""
+    covariances of its views, the heading prior of its box axis and the ``ground`` under it, as
+    ``config`` asks."""
     heading = instance_heading(inst, config.heading_prior_min_points) if config.heading_prior_sigma is not None else None
     return smooth_trajectory(times, inst.poses, inst.valid, config,
-                             measurement_covariances(inst, len(times), config), heading)
+                             measurement_covariances(inst, len(times), config, heading is not None), heading,
+                             None if ground is None else ground.heights_at)
 
 
-def smooth_tracks(tracks: InstanceTracks, config: SmoothingConfig) -> InstanceTracks:
+def smooth_tracks(tracks: InstanceTracks, config: SmoothingConfig, ground: Optional[GroundSurface] = None) -> InstanceTracks:
     """Replace each dynamic instance's poses by smoothed ones at the frame times (valid within the
     measured span).
 
@@ -170,7 +185,7 @@ def smooth_tracks(tracks: InstanceTracks, config: SmoothingConfig) -> InstanceTr
     times = np.asarray(tracks.frame_times, np.float64)
     for inst in tracks.instances:
         meas = registration_times(inst, times, config)
-        sm = smooth_instance(inst, meas, config)
+        sm = smooth_instance(inst, meas, config, ground)
         lo, hi = sm.span
         slack = float(np.max(np.abs(meas - times)))  # frame times lie at most this far outside [lo, hi]
         valid = (meas >= lo) & (meas <= hi)
@@ -312,7 +327,7 @@ def run_preprocessing(
         smoothing = config.smoothing
         tracks, cached = _cached_file(
             cache_dir / f"smoothing-{smooth_key}.npz",
-            lambda: smooth_tracks(tracks, smoothing),
+            lambda: smooth_tracks(tracks, smoothing, ground_surface(scene, smoothing)),
             lambda r, p: r.save(p), InstanceTracks.load)
         timings.append(StageTiming("smoothing", time.perf_counter() - t0, cached))
 

@@ -186,3 +186,22 @@ def roll_pitch(rotation: np.ndarray) -> tuple[float, float]:  # rotation: [3, 3]
     """ZYX-Euler roll and pitch [rad] of a rotation."""
     up = rotation[2, :]
     return math.atan2(up[1], up[2]), math.asin(max(-1.0, min(1.0, -up[0])))
+
+
+def ground_height_residual(
+    pose0: np.ndarray,  # [4, 4] state pose at step i
+    pose1: np.ndarray,  # [4, 4] state pose at step i + 1
+    ground_rise: float,  # metres the ground rises from under pose0 to under pose1
+    jacobians: bool = True,
+) -> tuple[np.ndarray, list[np.ndarray] | None]:
+    """How much more the vehicle rises between two steps than the ground under it:
+    ``[(p1_z - p0_z) - ground_rise]``. Jacobians (GTSAM's right perturbation, translation moved
+    by ``R dv``): pose0 [1, 6] and pose1 [1, 6], over ``[rotation; translation]``."""
+    err = np.array([pose1[2, 3] - pose0[2, 3] - ground_rise])
+    if not jacobians:
+        return err, None
+    H0 = np.zeros((1, 6))
+    H1 = np.zeros((1, 6))
+    H0[0, 3:] = -pose0[2, :3]
+    H1[0, 3:] = pose1[2, :3]
+    return err, [H0, H1]

@@ -10,7 +10,7 @@ import numpy as np
 from gtsam.symbol_shorthand import K, S, V, X
 
 from idsplat_ns.instances.smoothing.config import SmoothingConfig
-from idsplat_ns.instances.smoothing.ct_model import motion_residual, tilt_residual
+from idsplat_ns.instances.smoothing.ct_model import ground_height_residual, motion_residual, tilt_residual
 
 SHARED_KEY = S(0)
 """Key of the rotation shared by all times (Rot3)."""
@@ -120,6 +120,23 @@ def tilt_factor(i: int, config: SmoothingConfig) -> gtsam.CustomFactor:
 
     def error(this: gtsam.CustomFactor, values: gtsam.Values, jac: gtsam.JacobianVector | None) -> np.ndarray:
         err, H = tilt_residual(values.atPose3(keys[0]).matrix(), values.atRot3(keys[1]).matrix(), jacobians=jac is not None)
+        if jac is not None:
+            jac[0] = H[0]
+            jac[1] = H[1]
+        return err
+
+    return gtsam.CustomFactor(noise, keys, error)
+
+
+def ground_height_factor(i: int, ground_rise: float, sigma: float) -> gtsam.CustomFactor:
+    """The vehicle's height at step ``i + 1`` minus that at step ``i`` equals the rise of the
+    ground under it (``ground_rise`` metres) within ``sigma`` metres: it stays on the road."""
+    noise = gtsam.noiseModel.Isotropic.Sigma(1, sigma)
+    keys = [pose_key(i), pose_key(i + 1)]
+
+    def error(this: gtsam.CustomFactor, values: gtsam.Values, jac: gtsam.JacobianVector | None) -> np.ndarray:
+        err, H = ground_height_residual(values.atPose3(keys[0]).matrix(), values.atPose3(keys[1]).matrix(),
+                                        ground_rise, jacobians=jac is not None)
         if jac is not None:
             jac[0] = H[0]
             jac[1] = H[1]

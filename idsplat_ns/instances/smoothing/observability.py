@@ -129,6 +129,7 @@ def translation_covariances(
     min_facing_points: float = 10.0,
     one_sided_faces: bool = True,
     vertical_sigma: float | None = None,
+    sparse_frame_points: int | None = None,
 ) -> np.ndarray:  # -> [F, 3, 3] canonical frame
     """Covariance of each frame's registered translation: ``sigma`` along the directions its
     surfaces measure, ``degenerate_sigma`` along those it does not but at least
@@ -148,7 +149,11 @@ def translation_covariances(
     (what it measures there is tied to the other frames through nothing but a slide).
 
     With ``vertical_sigma``, a frame's variance along the canonical vertical is capped at its
-    square (information is added along z where a slide left it larger)."""
+    square (information is added along z where a slide left it larger).
+
+    With ``sparse_frame_points``, a frame of fewer points (but at least ``min_frame_points``)
+    leaves all its unmeasured directions free, anchored or not: for instances whose heading and
+    height other factors carry (the smoother's heading prior and ground)."""
     out = np.tile(np.eye(3) * sigma**2, (num_frames, 1, 1))
     points = np.asarray(points, np.float64)
     frames = np.asarray(point_frames, np.int64)
@@ -172,7 +177,10 @@ def translation_covariances(
         if unmeasured.shape[1] > 0:
             others = total - projectors[f][0]
             counts, within = np.linalg.eigh(unmeasured.T @ others @ unmeasured)  # [K], [K, K]
-            free = (unmeasured @ within)[:, counts >= min_anchor_frames - 1e-6]  # [3, K'] orthonormal
+            anchored = counts >= min_anchor_frames - 1e-6
+            if sparse_frame_points is not None and numbers[f] < sparse_frame_points:
+                anchored[:] = True  # a sparse far view slides: the motion carries it, anchored or not
+            free = (unmeasured @ within)[:, anchored]  # [3, K'] orthonormal
         for u in one_sided[f]:
             rest = u - free @ (free.T @ u)  # the part of u not yet free
             if np.linalg.norm(rest) > 0.7:

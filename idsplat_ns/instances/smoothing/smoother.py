@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from typing import Callable
 
 import gtsam
 import numpy as np
@@ -106,6 +107,30 @@ def _running_median(values: np.ndarray, half_width: int) -> np.ndarray:  # value
     return out
 
 
+def local_line_positions(
+    times: np.ndarray,  # [T] seconds of the states
+    positions: np.ndarray,  # [T, D] measured positions (rows where ~use are ignored)
+    use: np.ndarray,  # [T] bool
+    window: int = 5,
+) -> np.ndarray:  # -> [T, D]
+    """Each state's position on a straight line through the ``window`` measurements nearest in
+    time (Theil-Sen: median of pairwise slopes, so one wrong measurement of five does not move
+    it). Unlike a running median, it does not pull a track's ends inwards (by up to a step)."""
+    idx = np.flatnonzero(use)
+    t_meas, p_meas = times[idx], positions[idx]
+    out = np.empty((len(times), positions.shape[1]))
+    for k, t in enumerate(times):
+        near = np.sort(np.argsort(np.abs(t_meas - t), kind="stable")[:window])
+        tn, pn = t_meas[near], p_meas[near]
+        if len(near) == 1:
+            out[k] = pn[0]
+            continue
+        i, j = np.triu_indices(len(near), 1)
+        slope = np.median((pn[j] - pn[i]) / (tn[j] - tn[i])[:, None], axis=0)
+        out[k] = np.median(pn - slope * tn[:, None], axis=0) + slope * t
+    return out
+
+
 @dataclass
 class _InitialGuess:
     poses: np.ndarray  # [T, 4, 4]
@@ -188,6 +213,7 @@ def _build_graph(
     config: SmoothingConfig,
     covariances: list[np.ndarray | None],  # per step: [3, 3] translation covariance, or None (config's)
     heading: np.ndarray | None = None,  # [3] the vehicle's box axis in the canonical frame
+    ground_heights: np.ndarray | None = None,  # [T] ground height under each step (NaN: unknown)
 ) -> gtsam.NonlinearFactorGraph:
     graph = gtsam.NonlinearFactorGraph()
     for t in np.flatnonzero(use):
@@ -200,6 +226,9 @@ def _build_graph(
         graph.add(F.motion_factor(t, dt, config))
         graph.add(F.speed_walk_factor(t, dt, config))
         graph.add(F.curvature_walk_factor(t, dt, config))
+        if ground_heights is not None and np.isfinite(ground_heights[t : t + 2]).all():
+            sigma = F.random_walk_sigma(config.ground_height_walk_rate, dt, config)
+            graph.add(F.ground_height_factor(t, float(ground_heights[t + 1] - ground_heights[t]), sigma))
     graph.add(F.weak_speed_prior_factor(float(init.speeds[0]), config))
     graph.add(F.weak_shared_rotation_prior_factor(init.shared, config))
     if heading is not None and config.heading_prior_sigma is not None:
@@ -280,6 +309,7 @@ def smooth_trajectory(
     config: SmoothingConfig | None = None,
     translation_covariances: np.ndarray | None = None,  # [T, 3, 3] per measurement, its own frame (observability.py)
     heading: np.ndarray | None = None,  # [3] the vehicle's box axis in the canonical frame (amodal_centre.box_heading)
+    ground: Callable[[np.ndarray], np.ndarray] | None = None,  # world xy [M, 2] -> ground height [M] (NaN: unknown)
 ) -> SmoothedTrajectory:
     """Robust coordinated-turn smoothing of one instance's measured poses.
 
@@ -289,6 +319,9 @@ def smooth_trajectory(
     of the measurements. ``translation_covariances`` replace ``config.measurement_trans_sigma``
     per measurement (its translation is uncertain along directions its points do not measure).
     ``heading``, with ``config.heading_prior_sigma``, ties the direction of travel to the box axis.
+    ``ground`` (e.g. ``GroundSurface.heights_at``), with ``config.ground_height_walk_rate``, ties
+    each step's height change to the ground's under it (at positions from the measurements,
+    ``local_line_positions``).
     Raises ValueError on malformed input (a programming error, not user input).
     """
     config = config or SmoothingConfig()
@@ -297,15 +330,12 @@ def smooth_trajectory(
     valid = np.asarray(valid, dtype=bool)
     _validate(times, poses, valid)
     covariances: list[np.ndarray | None] = [None] * len(times)
-    # Maps a measurement's translation error to metres at the configured sigma (identity when isotropic).
-    to_measured = np.tile(np.eye(3), (len(times), 1, 1))  # [T, 3, 3]
     if translation_covariances is not None:
         if np.shape(translation_covariances) != (len(times), 3, 3):
             raise ValueError(f"smooth_trajectory: `translation_covariances` must have shape ({len(times)}, 3, 3), "
                              f"got {np.shape(translation_covariances)}")
         for t in np.flatnonzero(valid):
             covariances[t] = np.asarray(translation_covariances[t], np.float64)
-            to_measured[t] = config.measurement_trans_sigma * np.linalg.inv(np.linalg.cholesky(covariances[t]))
 
     # Recentre (huge map coordinates): the factors see positions relative to the first valid one.
     origin = poses[np.flatnonzero(valid)[0], :3, 3].copy()
@@ -322,23 +352,42 @@ def smooth_trajectory(
         usable &= ~gross_yaw_outliers(measured, valid, config.gross_yaw_deviation)
     init = _initial_guess(times, measured, usable)
     config = turn_config(config, measured_heading_change(measured, usable))
+    ground_heights = None
+    if ground is not None and config.ground_height_walk_rate is not None:
+        xy = local_line_positions(times, measured[:, :2, 3], usable) + origin[:2]
+        ground_heights = np.asarray(ground(xy), np.float64) - origin[2]
+        # Where the ground says how the height changes, a registration's height only places the
+        # vehicle above it: its vertical counts as unmeasured, so that a far view's vertical
+        # drift neither bends the track nor gets the measurement (and its along-track
+        # information) flagged as an outlier.
+        for t in np.flatnonzero(valid & np.isfinite(ground_heights)):
+            up = measured[t, :3, :3][2, :]  # world vertical in the measurement's own frame
+            base = covariances[t] if covariances[t] is not None else config.measurement_trans_sigma ** 2 * np.eye(3)
+            covariances[t] = base + config.degenerate_sigma ** 2 * np.outer(up, up)
+    # Maps a measurement's translation error to metres at the configured sigma (identity when isotropic).
+    to_measured = np.tile(np.eye(3), (len(times), 1, 1))  # [T, 3, 3]
+    for t in np.flatnonzero(valid):
+        if covariances[t] is not None:
+            to_measured[t] = config.measurement_trans_sigma * np.linalg.inv(np.linalg.cholesky(covariances[t]))
     values = _values_from(init)
-    first = _optimize(_build_graph(times, measured, usable, init, config, covariances, heading), values,
-                      config.first_pass_iterations)
+
+    def graph_of(use: np.ndarray) -> gtsam.NonlinearFactorGraph:
+        return _build_graph(times, measured, use, init, config, covariances, heading, ground_heights)
+
+    first = _optimize(graph_of(usable), values, config.first_pass_iterations)
 
     errors, threshold, inliers = _flag_outliers(measured, valid, first, config, covariances)
     inliers &= usable
     if inliers.sum() < config.reconverge_below_inlier_fraction * usable.sum():
         # The single first iteration did not converge: iterate it before trusting its residuals.
-        first = _optimize(_build_graph(times, measured, usable, init, config, covariances, heading), first,
-                          config.final_iterations)
+        first = _optimize(graph_of(usable), first, config.final_iterations)
         errors, threshold, inliers = _flag_outliers(measured, valid, first, config, covariances)
         inliers &= usable
     if not inliers.any():
         # Everything looks wrong: keep the measurement that agrees best rather than none.
         inliers[int(np.nanargmin(errors))] = True
 
-    final = _optimize(_build_graph(times, measured, inliers, init, config, covariances, heading), first, config.final_iterations)
+    final = _optimize(graph_of(inliers), first, config.final_iterations)
 
     T = len(times)
     out_poses = np.empty((T, 4, 4))
