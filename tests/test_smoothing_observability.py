@@ -206,3 +206,22 @@ def test_box_heading_snaps_a_skewed_direction_of_travel_onto_the_box():
     roof = np.stack([rng.uniform(-2, 2, 100), rng.uniform(-0.9, 0.9, 100), np.full(100, HEIGHT)], 1)
     guess = np.array([0.8, 0.6, 0.0])
     np.testing.assert_allclose(box_heading(roof, guess), guess, atol=1e-9)
+
+
+def test_sparse_rear_views_leave_sideways_to_the_motion_and_dense_ones_keep_it():
+    """``sparse_frame_points``: a far bus seen from behind in 30-70 points a frame slides sideways
+    unchecked by any other frame; those frames leave across and up free. A followed car's dense
+    rear views (80 points and more) keep the measured sigma there, as without the setting."""
+    rng = np.random.default_rng(7)
+    sigma, big = 0.2, 3.0
+    counts = [30, 45, 60, 70, 120, 150]
+    points = np.concatenate([rear(rng, n) for n in counts])
+    frames = np.repeat(np.arange(len(counts)), counts)
+    cov = translation_covariances(points, frames, len(counts), sigma, 0.2, big, sparse_frame_points=100)
+    for f, n in enumerate(counts):
+        expected = [sigma, big, big] if n < 100 else [sigma, sigma, sigma]  # along is what a rear measures
+        np.testing.assert_allclose(np.sqrt(np.diag(cov[f])), expected, rtol=5e-3)
+    np.testing.assert_allclose(translation_covariances(points, frames, len(counts), sigma, 0.2, big),
+                               np.tile(np.eye(3) * sigma**2, (len(counts), 1, 1)), atol=1e-9)
+    with pytest.raises(IDSplatError, match="sparse-frame-points"):
+        SmoothingConfig(degenerate_sparse_frame_points=-1)
