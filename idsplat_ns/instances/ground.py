@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from typing import Iterable
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from idsplat_ns.errors import IDSplatError
 
@@ -32,8 +33,8 @@ class GroundConfig:
     """Metres: side of the square cells the lidar points are binned in."""
     cell_rank: int = 2
     """A cell's height is its ``cell_rank``-th lowest point (0-based): the lowest few are
-    discarded as noise (multipath returns below the road). Cells with fewer points use their
-    highest point below that rank."""
+    discarded as noise (multipath returns below the road). A cell with fewer points uses its
+    highest."""
     search_radius: float = 4.0
     """Metres around a query position whose cells the ground plane is fitted to (a car's
     footprint and a margin where the lidar sees the road beside it)."""
@@ -85,8 +86,6 @@ class GroundSurface:
     """Cell heights of the lidar points, queried as a locally fitted ground plane."""
 
     def __init__(self, centres: np.ndarray, heights: np.ndarray, config: GroundConfig) -> None:  # centres: [C, 2], heights: [C]
-        from scipy.spatial import cKDTree
-
         self.centres = np.asarray(centres, np.float64)
         self.heights = np.asarray(heights, np.float64)
         self.config = config

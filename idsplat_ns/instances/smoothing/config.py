@@ -174,9 +174,9 @@ class SmoothingConfig:
     from behind at 50-70 m (25-77 points a frame) registered 0.4-0.6 m to either side of its
     lane across its track on every synthetic street; with the ground in place, this took its
     box-corner error from 0.27 m to 0.12 m on average over seeds 0-12, and no instance got worse
-    by 5 mm
-    (docs/smoothing.md). Dense views keep ``measurement_trans_sigma`` there (a car followed
-    from behind, whose rear's texture places it sideways). None: only anchored directions."""
+    by 5 mm (docs/smoothing.md). Dense views keep ``measurement_trans_sigma`` there (a car
+    followed from behind, whose rear's texture places it sideways). None: only anchored
+    directions."""
     degenerate_one_sided: bool = True
     """Ours: along an axis that some frames measure only through faces on one side of the car (its
     front) and the others only through the opposite side (its rear), with no frame seeing both,
