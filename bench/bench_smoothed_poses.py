@@ -120,11 +120,13 @@ def main() -> None:
         train_scene = scene.subset(train)
         registered = run_preprocessing(train_scene, config, cache, progress=False, verbose=False).tracks
         times = np.asarray(registered.frame_times, np.float64)
-        grounds: dict = {}  # one lidar ground per ground setting of the variants
-        for config in variants.values():
+        built: dict = {}  # one lidar ground per ground setting of the variants
+        grounds = {}  # variant name -> its ground (None: off)
+        for name, config in variants.items():
             key = repr(config.ground) if config.ground_height_walk_rate is not None else None
-            if key not in grounds:
-                grounds[key] = ground_surface(train_scene, config)
+            if key not in built:
+                built[key] = ground_surface(train_scene, config)
+            grounds[name] = built[key]
         for inst in registered.instances:
             if inst.num_valid < 3 or inst.point_frames is None:
                 continue
@@ -134,8 +136,7 @@ def main() -> None:
             boxes, size = matched
             per_variant = {}
             for name, config in variants.items():
-                ground = grounds[repr(config.ground) if config.ground_height_walk_rate is not None else None]
-                poses = {k: P for k, P in _smoothed_poses(inst, times, config, ground).items() if boxes[k] is not None}
+                poses = {k: P for k, P in _smoothed_poses(inst, times, config, grounds[name]).items() if boxes[k] is not None}
                 per_variant[name] = _errors(poses, boxes, size) if len(poses) >= 3 else None
             if all(v is not None for v in per_variant.values()):  # the same instances in every row
                 for name, v in per_variant.items():

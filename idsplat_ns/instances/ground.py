@@ -72,12 +72,18 @@ def _key_centres(keys: np.ndarray, cell: float) -> np.ndarray:  # keys: [C] -> [
     return (np.stack([i, j], axis=1).astype(np.float64) + 0.5) * cell
 
 
+def _run_bounds(sorted_keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # [M] -> starts [C], ends [C]
+    """Start and end (exclusive) index of each run of equal keys in a sorted array."""
+    starts = np.flatnonzero(np.r_[True, sorted_keys[1:] != sorted_keys[:-1]])
+    return starts, np.r_[starts[1:], len(sorted_keys)]
+
+
 def _lowest_per_cell(keys: np.ndarray, z: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
     """The ``count`` lowest heights of each cell: (keys [M], heights [M]), sorted by key then height."""
     order = np.lexsort((z, keys))
     keys, z = keys[order], z[order]
-    starts = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
-    rank = np.arange(len(keys)) - np.repeat(starts, np.diff(np.r_[starts, len(keys)]))
+    starts, ends = _run_bounds(keys)
+    rank = np.arange(len(keys)) - np.repeat(starts, ends - starts)
     keep = rank < count
     return keys[keep], z[keep]
 
@@ -108,8 +114,7 @@ class GroundSurface:
         if not keys:
             return cls(np.zeros((0, 2)), np.zeros(0), config)
         k, z = _lowest_per_cell(np.concatenate(keys), np.concatenate(heights), count)
-        starts = np.flatnonzero(np.r_[True, k[1:] != k[:-1]])
-        ends = np.r_[starts[1:], len(k)]
+        starts, ends = _run_bounds(k)
         # The rank-th lowest, or the highest there is in a cell with fewer points.
         pick = np.minimum(starts + config.cell_rank, ends - 1)
         return cls(_key_centres(k[starts], config.cell_size), z[pick], config)
