@@ -54,10 +54,8 @@ def main() -> None:
             train_s = _run([
                 str(BIN / "ns-train"), "idsplat-fast", "--vis", "tensorboard", "--output-dir", str(args.output_dir),
                 "--experiment-name", name, "--timestamp", "run", "--max-num-iterations", str(args.steps),
-                "--pipeline.datamanager.instance-mode", mode,
-                "--pipeline.datamanager.dataparser.builtin-preset", args.preset,
-                "--pipeline.datamanager.dataparser.builtin-seed", str(args.seed),
-                *shlex.split(args.train_args),
+                "--pipeline.datamanager.instance-mode", mode, *shlex.split(args.train_args),
+                "idsplat-builtin", "--preset", args.preset, "--seed", str(args.seed),
             ])
             _run([str(BIN / "ns-eval"), "--load-config", str(run_dir / "config.yml"), "--output-path", str(eval_json)])
         results = json.loads(eval_json.read_text())["results"]

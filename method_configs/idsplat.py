@@ -81,7 +81,8 @@ def make_trainer_config(method_name: str, max_steps: int, resolution_schedule: t
         machine=MachineConfig(device_type=_device()),
         pipeline=IDSplatPipelineConfig(datamanager=IDSplatDataManagerConfig(), model=model),
         optimizers=_optimizers(max_steps, warmup_scale=max_steps / 30_000 if fast else 1.0),
-        viewer=ViewerConfig(num_rays_per_chunk=1 << 15),
+        # ns-train returns when training ends; --viewer.quit-on-train-completion False keeps the viewer up.
+        viewer=ViewerConfig(num_rays_per_chunk=1 << 15, quit_on_train_completion=True),
         vis="viewer",
     )
 

@@ -11,6 +11,12 @@ def cache_root() -> Path:
     return Path(os.environ.get("IDSPLAT_CACHE", Path.home() / ".cache" / "idsplat_ns")).expanduser()
 
 
+def instance_cache_dir(scene_name: str) -> Path:
+    """Where a sequence's instance preprocessing stages are cached: ``ns-train`` and
+    ``idsplat-preprocess`` share it, each stage keyed by its inputs and settings."""
+    return cache_root() / "instances" / scene_name
+
+
 def builtin_street(preset: str = "small", seed: int = 0) -> Path:
     """Path to the built-in street of ``preset``/``seed``, generating it the first time."""
     from idsplat_ns.data.synthetic import generate_sequence, get_preset, is_current, sequence_name

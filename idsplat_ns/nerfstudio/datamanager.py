@@ -5,16 +5,20 @@ evaluation batches."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Literal, Optional, Tuple, Type
 
 import torch
+from rich.console import Console
 from nerfstudio.data.datamanagers.full_images_datamanager import FullImageDatamanager, FullImageDatamanagerConfig
 
 from idsplat_ns.instances.modes import InstanceMode, instance_tracks_for_mode
 from idsplat_ns.instances.runner import PreprocessConfig
-from idsplat_ns.nerfstudio.builtin_scene import cache_root
-from idsplat_ns.nerfstudio.dataparser import IDSplatDataParserConfig, PandaSetDataParserConfig
+from idsplat_ns.nerfstudio.builtin_scene import instance_cache_dir
+from idsplat_ns.nerfstudio.dataparser import AutoDataParserConfig, IDSplatDataParserUnion
 from idsplat_ns.nerfstudio.dataset import IDSplatDataset, frames_of_split
+
+CONSOLE = Console()
 
 
 @dataclass
@@ -22,8 +26,8 @@ class IDSplatDataManagerConfig(FullImageDatamanagerConfig):
     """Datamanager of the IDSplat method."""
 
     _target: Type = field(default_factory=lambda: IDSplatDataManager)
-    dataparser: IDSplatDataParserConfig = field(default_factory=PandaSetDataParserConfig)
-    """Which dataset to read (PandaSet layout by default, the built-in street without --data)."""
+    dataparser: IDSplatDataParserUnion = field(default_factory=AutoDataParserConfig)
+    """Which dataset to read: a subcommand (idsplat-auto recognises --data; without it, the built-in street)."""
     cache_images: Literal["cpu", "gpu"] = "cpu"
     """Keep decoded images in CPU memory (moved to the device per step)."""
     cache_images_type: Literal["uint8", "float32"] = "uint8"
@@ -35,6 +39,9 @@ class IDSplatDataManagerConfig(FullImageDatamanagerConfig):
     smoothing), ``oracle`` (the dataset's annotated tracks: an upper bound) or ``static`` (none)."""
     preprocess: PreprocessConfig = field(default_factory=PreprocessConfig)
     """Instance preprocessing settings (self-supervised mode); paper defaults."""
+    import_tracks: Optional[Path] = None
+    """Start from instance tracks in a JSON file (written by ``idsplat-preprocess --export`` or another
+    tracker, in the data's own frame and clock; docs/instances.md) instead of the instance mode's."""
 
 
 class IDSplatDataManager(FullImageDatamanager[IDSplatDataset]):
@@ -51,9 +58,16 @@ class IDSplatDataManager(FullImageDatamanager[IDSplatDataset]):
         scene = meta["scene"]
         train_frames = frames_of_split(meta)
         meta["instance_mode"] = config.instance_mode
-        meta["instance_tracks"] = instance_tracks_for_mode(
-            scene, config.instance_mode, train_frames, config.preprocess, cache_root() / "instances" / scene.name
-        )
+        if config.import_tracks is not None:
+            from idsplat_ns.instances.tracks_json import tracks_from_json
+
+            meta["instance_mode"] = "imported"
+            meta["instance_tracks"] = tracks_from_json(config.import_tracks, scene.subset(train_frames))
+            CONSOLE.print(f"[bold]instances: {len(meta['instance_tracks'].instances)} imported from {config.import_tracks}")
+        else:
+            meta["instance_tracks"] = instance_tracks_for_mode(
+                scene, config.instance_mode, train_frames, config.preprocess, instance_cache_dir(scene.name)
+            )
 
     @property
     def scene(self):

@@ -1,25 +1,30 @@
-"""nerfstudio dataparsers: PandaSet (default: the built-in synthetic street) and Waymo.
+"""nerfstudio dataparsers, as ``ns-train`` subcommands: ``idsplat-auto`` (the default: recognises
+``--data``, the built-in street without it), ``idsplat-builtin``, ``idsplat-pandaset``, ``idsplat-waymo``.
 
-Both turn a :class:`~idsplat_ns.data.scene.Scene` into nerfstudio ``Cameras`` (OpenGL axes, metres,
+All turn a :class:`~idsplat_ns.data.scene.Scene` into nerfstudio ``Cameras`` (OpenGL axes, metres,
 no rescaling) and hand the scene itself to the dataset and model through ``metadata``.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Optional, Tuple, Type
 
 import numpy as np
 import torch
+import tyro
 from nerfstudio.cameras.cameras import Cameras, CameraType
 from nerfstudio.data.dataparsers.base_dataparser import DataParser, DataParserConfig, DataparserOutputs
 from nerfstudio.data.scene_box import SceneBox
+from rich.console import Console
 
 from idsplat_ns.data.images import undistorted_view
 from idsplat_ns.data.scene import Scene
 from idsplat_ns.data.split import split_frames
 from idsplat_ns.errors import IDSplatError
+
+CONSOLE = Console()
 
 # OpenCV (x right, y down, z forward) -> OpenGL / nerfstudio (x right, y up, z back).
 OPENCV_TO_OPENGL = np.diag([1.0, -1.0, -1.0, 1.0])
@@ -31,7 +36,7 @@ class IDSplatDataParserConfig(DataParserConfig):
 
     _target: Type = field(default_factory=lambda: IDSplatDataParser)
     data: Optional[Path] = None
-    """Sequence to load; None uses the dataparser's default (the built-in street for PandaSet)."""
+    """Sequence to load (each dataparser says what it takes)."""
     cameras: Optional[Tuple[str, ...]] = None
     """Camera names to use (default: every camera of the sequence)."""
     start_frame: int = 0
@@ -46,61 +51,177 @@ class IDSplatDataParserConfig(DataParserConfig):
     """Hold out every k-th frame instead (overrides train_fraction), as some protocols do."""
     load_lidar: bool = True
     """Read lidar sweeps (initialisation; lidar supervision in the full model)."""
+    protocol: Optional[str] = None
+    """One of the paper's evaluation protocols (streetgs, notr-dynamic, pvg, view-density-25/50/75/100 on
+    Waymo; pandaset-10): it sets the frames, cameras, resolution and split of the sequence (docs/data.md)."""
 
     def load_scene(self) -> Scene:
         """Parse the configured sequence; each dataset's config defines it."""
         raise NotImplementedError(f"{type(self).__name__} must define load_scene (use a dataset's config)")
 
+    def sequence_key(self) -> str:
+        """The name a protocol lists this sequence under (PandaSet folder, Waymo context)."""
+        raise IDSplatError(f"--protocol {self.protocol}: this dataparser has no protocols; use idsplat-waymo or idsplat-pandaset")
+
+    def resolved(self) -> "IDSplatDataParserConfig":
+        """The config that loads: the protocol's settings applied (a copy; self is unchanged)."""
+        if self.protocol is None:
+            return self
+        from idsplat_ns.data.protocols import protocol_dataset, select_protocol
+
+        want = protocol_dataset(self.protocol)
+        have = "waymo" if isinstance(self, WaymoDataParserConfig) else "pandaset"
+        if want != have:
+            raise IDSplatError(f"--protocol {self.protocol} is a {want} protocol, but the data is {have}; choose a {have} protocol")
+        sel = select_protocol(self.protocol, self.sequence_key())
+        CONSOLE.print(f"[bold]{sel.describe()}")
+        return replace(
+            self, protocol=None, cameras=sel.cameras, start_frame=sel.start_frame, end_frame=sel.end_frame,
+            downscale_factor=sel.downscale_factor, train_fraction=sel.train_fraction, eval_every=sel.eval_every,
+        )
+
+
+@dataclass
+class BuiltinDataParserConfig(IDSplatDataParserConfig):
+    """The built-in synthetic street (PandaSet layout), generated on first use and cached."""
+
+    _target: Type = field(default_factory=lambda: IDSplatDataParser)
+    preset: str = "small"
+    """Street preset: tiny, small or bench."""
+    seed: int = 0
+    """Street seed (0-19 are the project's development streets)."""
+
+    def load_scene(self) -> Scene:
+        from idsplat_ns.data.pandaset import load_sequence
+        from idsplat_ns.nerfstudio.builtin_scene import builtin_street
+
+        path = builtin_street(self.preset, self.seed)
+        return load_sequence(
+            path, cameras=self.cameras, start=self.start_frame, end=self.end_frame, load_lidar=self.load_lidar
+        )
+
 
 @dataclass
 class PandaSetDataParserConfig(IDSplatDataParserConfig):
-    """A PandaSet sequence folder (``.../pandaset/001``); without ``--data``, the built-in street."""
+    """A PandaSet sequence folder (``.../pandaset/001``), or a street written by ``idsplat-synth``."""
 
     _target: Type = field(default_factory=lambda: IDSplatDataParser)
-    builtin_preset: str = "small"
-    """Preset of the built-in synthetic street used when no data is given (tiny, small, bench)."""
-    builtin_seed: int = 0
-    """Seed of the built-in synthetic street."""
     lidar_sensors: Tuple[int, ...] = (0,)
     """PandaSet lidars to use: 0 the spinning Pandar64, 1 the front PandarGT."""
 
     def load_scene(self) -> Scene:
         from idsplat_ns.data.pandaset import load_sequence
 
-        path = self.data
-        if path is None:
-            from idsplat_ns.nerfstudio.builtin_scene import builtin_street
-
-            path = builtin_street(self.builtin_preset, self.builtin_seed)
-            self.data = path  # so that the saved config.yml reloads the same scene
+        if self.data is None:
+            raise IDSplatError("--data is required for idsplat-pandaset: a sequence folder (pandaset/001); idsplat-builtin needs none")
         return load_sequence(
-            path, cameras=self.cameras, start=self.start_frame, end=self.end_frame,
+            self.data, cameras=self.cameras, start=self.start_frame, end=self.end_frame,
             load_lidar=self.load_lidar, lidar_sensors=self.lidar_sensors,
         )
+
+    def sequence_key(self) -> str:
+        return Path(self.data).name if self.data is not None else ""
 
 
 @dataclass
 class WaymoDataParserConfig(IDSplatDataParserConfig):
-    """A Waymo v1 segment (``segment-*.tfrecord``) or a v2 root with ``context_name``."""
+    """A Waymo v1 segment (``segment-*.tfrecord``, or a folder of them with ``--segment``) or a v2
+    root with ``--context-name``."""
 
     _target: Type = field(default_factory=lambda: IDSplatDataParser)
+    segment: Optional[str] = None
+    """v1 only, when --data is a folder of .tfrecord files: the segment (context name or file name)."""
     context_name: Optional[str] = None
-    """v2 only: the segment context name inside the v2 root given as data."""
+    """v2 only: the segment context name inside the v2 root given as data (optional if the root has one)."""
+    lidars: Optional[Tuple[str, ...]] = None
+    """Lidars to load (TOP, FRONT, SIDE_LEFT, SIDE_RIGHT, REAR); default all five."""
+    second_return: bool = True
+    """Also keep second returns (extra rays where they hit)."""
     train_fraction: float = 0.75
     """Fraction of frames used for training when eval_every is None."""
     eval_every: Optional[int] = 4
     """Hold out every 4th frame: the paper's AD-GS / SplatFlow protocols on Waymo (75% train)."""
 
-    def load_scene(self) -> Scene:
-        from idsplat_ns.data.waymo import load_segment
+    def _detected(self):
+        from idsplat_ns.data.formats import detect_data
 
         if self.data is None:
-            raise IDSplatError("--data is required for idsplat-waymo: a segment-*.tfrecord file or a v2 root with --context-name")
-        kwargs = {"context_name": self.context_name} if self.context_name else {}
-        return load_segment(
-            self.data, cameras=list(self.cameras) if self.cameras else None, start=self.start_frame,
-            end=self.end_frame, load_lidar=self.load_lidar, **kwargs,
+            raise IDSplatError("--data is required for idsplat-waymo: a segment-*.tfrecord file, a folder of them with --segment, or a v2 root")
+        found = detect_data(self.data, self.segment, self.context_name)
+        if found.format == "pandaset":
+            raise IDSplatError(f"{self.data}: a PandaSet-layout folder, not Waymo data; use idsplat-pandaset (or plain --data)")
+        return found
+
+    def sequence_key(self) -> str:
+        found = self._detected()
+        if found.context_name is not None:
+            return found.context_name
+        from idsplat_ns.data.waymo.v1 import read_v1
+
+        return read_v1(found.path, None, [], 0, 1)[0].context_name  # a file not named segment-<context>
+
+    def load_scene(self) -> Scene:
+        from idsplat_ns.data.waymo import load_segment
+        from idsplat_ns.data.waymo.memory import available_memory_bytes, check_fits, estimate_segment_memory
+
+        found = self._detected()
+        lidars = list(self.lidars) if self.lidars is not None else None
+        estimate = estimate_segment_memory(
+            found.path, found.context_name, lidars if self.load_lidar else [], self.second_return, self.start_frame, self.end_frame
         )
+        available = available_memory_bytes()
+        CONSOLE.print(f"waymo: {estimate.describe()}" + (f" ({available / 2**30:.1f} GiB available)" if available else ""))
+        check_fits(estimate, available, str(found.path))
+        kwargs = {"context_name": found.context_name} if found.format == "waymo-v2" else {}
+        return load_segment(
+            found.path, cameras=list(self.cameras) if self.cameras else None, start=self.start_frame,
+            end=self.end_frame, load_lidar=self.load_lidar, lidars=lidars, second_return=self.second_return, **kwargs,
+        )
+
+
+@dataclass
+class AutoDataParserConfig(IDSplatDataParserConfig):
+    """Whatever ``--data`` holds, recognised by its layout (a PandaSet sequence folder, a Waymo v1
+    ``.tfrecord`` or a folder of them with ``--segment``, a v2 root with ``--context-name``); without
+    ``--data``, the built-in street."""
+
+    _target: Type = field(default_factory=lambda: IDSplatDataParser)
+    segment: Optional[str] = None
+    """Waymo v1 folder of segments: which one."""
+    context_name: Optional[str] = None
+    """Waymo v2 root: which context."""
+    train_fraction: Optional[float] = None  # type: ignore[assignment]
+    """Fraction of frames used for training (default: the format's, 0.5 PandaSet, Waymo every 4th held out)."""
+    eval_every: Optional[int] = None
+    """Hold out every k-th frame (overrides train_fraction)."""
+    builtin_preset: str = "small"
+    """Without --data: the built-in street's preset (tiny, small, bench)."""
+    builtin_seed: int = 0
+    """Without --data: the built-in street's seed."""
+
+    def concrete(self) -> IDSplatDataParserConfig:
+        """The dataparser config of the recognised format, with these options."""
+        shared = {name: getattr(self, name) for name in (
+            "data", "cameras", "start_frame", "end_frame", "downscale_factor", "load_lidar", "protocol"
+        )}
+        if self.train_fraction is not None or self.eval_every is not None:
+            shared.update(train_fraction=0.5 if self.train_fraction is None else self.train_fraction, eval_every=self.eval_every)
+        if self.data is None:
+            return BuiltinDataParserConfig(preset=self.builtin_preset, seed=self.builtin_seed, **shared)
+        from idsplat_ns.data.formats import detect_data
+
+        found = detect_data(self.data, self.segment, self.context_name)
+        CONSOLE.print(f"[bold]data:[/bold] {found.describe()}")
+        if found.format == "pandaset":
+            return PandaSetDataParserConfig(**shared)
+        shared["data"] = found.path if found.format == "waymo-v1" else self.data
+        return WaymoDataParserConfig(context_name=found.context_name if found.format == "waymo-v2" else None, **shared)
+
+    def resolved(self) -> IDSplatDataParserConfig:
+        return self.concrete().resolved()
+
+    def load_scene(self) -> Scene:
+        return self.resolved().load_scene()
 
 
 class IDSplatDataParser(DataParser):
@@ -112,23 +233,32 @@ class IDSplatDataParser(DataParser):
     def __init__(self, config: IDSplatDataParserConfig):
         super().__init__(config=config)
         self._scene: Optional[Scene] = None
+        self._resolved: Optional[IDSplatDataParserConfig] = None
+
+    @property
+    def resolved(self) -> IDSplatDataParserConfig:
+        """The config that loads (format recognised, protocol applied)."""
+        if self._resolved is None:
+            self._resolved = self.config.resolved()
+        return self._resolved
 
     @property
     def scene(self) -> Scene:
         if self._scene is None:
-            self._scene = self.config.load_scene()
+            self._scene = self.resolved.load_scene()
         return self._scene
 
     def _generate_dataparser_outputs(self, split: str = "train", **kwargs) -> DataparserOutputs:
         scene = self.scene
-        train_idx, eval_idx = split_frames(scene.num_frames, self.config.train_fraction, self.config.eval_every)
+        config = self.resolved
+        train_idx, eval_idx = split_frames(scene.num_frames, config.train_fraction, config.eval_every)
         frame_ids = set(scene.frame_indices[train_idx if split == "train" else eval_idx].tolist())
         # Pinhole rasterizers: distorted images (Waymo) are undistorted on load, keeping their K.
         images = [undistorted_view(im) for im in scene.images if im.frame_index in frame_ids]
         if not images:
             raise IDSplatError(f"no {split} images: check --cameras, the frame range and the split options")
         camera_names = scene.camera_names
-        scale = 1.0 / self.config.downscale_factor
+        scale = 1.0 / config.downscale_factor
         duration = max(float(scene.frame_times[-1] - scene.frame_times[0]), 1e-6)
 
         c2w = np.stack([im.camera_to_world @ OPENCV_TO_OPENGL for im in images])[:, :3, :4]
@@ -165,5 +295,20 @@ class IDSplatDataParser(DataParser):
                 "image_scale": scale,
                 "camera_names": camera_names,
                 "split": split,
+                "protocol": self.config.protocol,
             },
         )
+
+
+IDSplatDataParserUnion = tyro.conf.OmitSubcommandPrefixes[  # type: ignore[misc]
+    tyro.extras.subcommand_type_from_defaults(
+        {
+            "idsplat-auto": AutoDataParserConfig(),
+            "idsplat-builtin": BuiltinDataParserConfig(),
+            "idsplat-pandaset": PandaSetDataParserConfig(),
+            "idsplat-waymo": WaymoDataParserConfig(),
+        },
+        prefix_names=False,
+    )
+]
+"""The dataparsers as ``ns-train`` subcommands; ``idsplat-auto`` (the default) recognises ``--data``."""
