@@ -3,7 +3,9 @@
 A sweep's rays are fired over ~0.1 s from a moving sensor while instances move. The rays of a
 batch are split into K equal-width bins of their timestamps; for each bin the Gaussians are posed
 at the bin's centre time (``posed_at(t)``, e.g. :meth:`SceneModel.posed_gaussians`) and the sensor
-is placed at the mean origin of the bin's rays with the sweep's rotation. Each bin is rendered by
+is placed at the mean origin of the bin's rays with the sweep's rotation. Rays of different lidars
+(Waymo's five sit up to ~2 m apart) are binned apart, so each lidar is rendered from its own
+position. Each bin is rendered by
 its own :func:`~idsplat_ns.render.rasterize_lidar` call (the set of present Gaussians may differ
 between bins: an instance may appear or vanish mid-sweep) and the results are scattered back into
 ray order.
@@ -49,14 +51,15 @@ class LidarRayBatch:
     intensities: Tensor  # [R] float32 in [0, 1]; 0 where nothing returned
     times: Tensor  # [R] float64 seconds since the sequence start
     returned: Tensor  # [R] bool, False for rays that returned nothing
+    sensor_ids: Optional[Tensor] = None  # [R] int64 which lidar fired each ray (None: one lidar)
 
     @property
     def num_rays(self) -> int:
         return self.origins.shape[0]
 
     def to(self, device: torch.device | str) -> LidarRayBatch:
-        return LidarRayBatch(*(getattr(self, f).to(device) for f in
-                               ("origins", "directions", "ranges", "intensities", "times", "returned")))  # fmt: skip
+        moved = [getattr(self, f).to(device) for f in ("origins", "directions", "ranges", "intensities", "times", "returned")]
+        return LidarRayBatch(*moved, sensor_ids=None if self.sensor_ids is None else self.sensor_ids.to(device))
 
 
 def sample_rays(
@@ -89,6 +92,7 @@ def sample_rays(
         ),
         times=torch.as_tensor(sweep.times[idx], dtype=torch.float64, device=device),
         returned=torch.as_tensor(sweep.returned[idx], dtype=torch.bool, device=device),
+        sensor_ids=torch.as_tensor(sweep.sensor_ids[idx].astype(np.int64), device=device),
     )
 
 
@@ -150,14 +154,22 @@ def render_lidar_rays(
         raise IDSplatError("render_lidar_rays: the ray batch is empty; sample at least one ray")
     device = rays.origins.device
     bins, centres = time_bins(rays.times, num_time_bins)
+    # One group per (lidar, time bin): each lidar is cast from its own position.
+    if rays.sensor_ids is not None:
+        _, sensor_rank = torch.unique(rays.sensor_ids.to(device), return_inverse=True)
+        groups = sensor_rank * centres.numel() + bins.to(device)
+    else:
+        groups = bins.to(device)
     rot = sensor_to_world[:3, :3].to(device=device, dtype=torch.float32)
     chunks: list[tuple[Tensor, LidarRender]] = []
-    for b in range(centres.numel()):
-        idx = torch.nonzero(bins == b).squeeze(1)
-        if idx.numel() == 0:
-            continue
-        g = posed_at(float(centres[b]))
-        origin = rays.origins[idx].mean(0)  # the bin's sensor position
+    posed_cache: dict[int, dict] = {}
+    for group in torch.unique(groups).tolist():
+        idx = torch.nonzero(groups == group).squeeze(1)
+        b = int(group % centres.numel())
+        if b not in posed_cache:  # the Gaussians are posed once per time bin, shared by the lidars
+            posed_cache[b] = posed_at(float(centres[b]))
+        g = posed_cache[b]
+        origin = rays.origins[idx].mean(0)  # this lidar's position in this bin
         lidar_from_world = torch.eye(4, device=device, dtype=torch.float32)
         lidar_from_world[:3, :3] = rot.T
         lidar_from_world[:3, 3] = -rot.T @ origin
