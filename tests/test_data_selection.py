@@ -216,3 +216,45 @@ def test_auto_without_data_is_the_builtin_street():
     concrete = AutoDataParserConfig(builtin_preset="tiny", builtin_seed=2, train_fraction=0.8).concrete()
     assert isinstance(concrete, BuiltinDataParserConfig) and (concrete.preset, concrete.seed) == ("tiny", 2)
     assert (concrete.train_fraction, concrete.eval_every) == (0.8, None)
+
+
+# --- bad real-data input: one line naming the file or option ------------------------------------
+
+MOTION = FRAME.parent / "motion_data_one_scenario.tfrecord"
+
+
+@needs_frame
+def test_bad_waymo_input(segments, tmp_path):
+    pytest.importorskip("nerfstudio")
+    from idsplat_ns.data.waymo import load_segment
+    from idsplat_ns.nerfstudio.dataparser import WaymoDataParserConfig
+
+    seg, _, v2, context = segments
+    cases = []
+    if MOTION.is_file():  # a TFRecord of another kind of proto (Waymo Motion's Scenario)
+        cases.append((lambda: load_segment(MOTION), "not a Waymo Frame protobuf", str(MOTION)))
+    broken = tmp_path / "v2"
+    shutil.copytree(v2, broken)
+    shutil.rmtree(broken / "training" / "camera_image")
+    cases += [
+        (lambda: load_segment(broken, context_name=context), "missing v2 component camera_image", "camera_image"),
+        (lambda: WaymoDataParserConfig(data=seg, cameras=("REAR_CAMERA",), end_frame=1).setup().scene,
+         "no camera named REAR_CAMERA", str(seg)),
+    ]
+    for call, match, named in cases:
+        with pytest.raises(IDSplatError, match=match) as err:
+            call()
+        assert named in str(err.value) and "\n" not in str(err.value)
+
+
+def test_an_instance_mode_without_lidar_is_refused(tiny_street):
+    from idsplat_ns.data.pandaset import load_sequence
+    from idsplat_ns.instances.modes import instance_tracks_for_mode
+    from idsplat_ns.instances.runner import PreprocessConfig
+
+    scene = load_sequence(tiny_street, load_lidar=False)
+    for mode in ("self-supervised", "oracle"):
+        with pytest.raises(IDSplatError, match="instance-mode static") as err:
+            instance_tracks_for_mode(scene, mode, set(scene.frame_indices.tolist()), PreprocessConfig(), Path("/nonexistent"))
+        assert str(tiny_street) in str(err.value)
+    assert instance_tracks_for_mode(scene, "static", set(), PreprocessConfig(), Path("/nonexistent")) is None

@@ -16,6 +16,7 @@ from typing import Literal, Optional
 from rich.console import Console
 
 from idsplat_ns.data.scene import Scene
+from idsplat_ns.errors import IDSplatError
 from idsplat_ns.instances.masks.precomputed import PrecomputedMasksConfig
 from idsplat_ns.instances.runner import PreprocessConfig, run_preprocessing
 from idsplat_ns.instances.tracks import InstanceTracks
@@ -50,8 +51,11 @@ def instance_tracks_for_mode(
     if mode == "static":
         return None
     if not scene.has_lidar:
-        CONSOLE.print("[yellow]note: the scene has no lidar; instances are lifted to lidar points, so the model is static")
-        return None
+        where = scene.root if scene.root is not None else scene.name
+        raise IDSplatError(
+            f"{where}: no lidar loaded, and instance mode {mode!r} needs lidar points (instances are lifted to them); "
+            "use data with lidar (and not --load-lidar False) or --pipeline.datamanager.instance-mode static"
+        )
     train_scene = scene.subset(train_frames)
     if mode == "oracle":
         from idsplat_ns.instances.oracle import oracle_instance_tracks

@@ -78,7 +78,7 @@ def preprocess(args: PreprocessArgs):
     cache_dir = instance_cache_dir(scene.name)
     tracks = instance_tracks_for_mode(scene, args.instance_mode, train_frames, args.preprocess, cache_dir)
     if tracks is None:
-        print("no instances (the scene has no lidar)")
+        print("no instances (static mode)")
         return None
     print(f"{len(tracks.instances)} dynamic instances, {len(tracks.static_instances)} made static; "
           f"stage caches in {cache_dir} (ns-train with the same data and settings reuses them)")
