@@ -1,7 +1,7 @@
 """How much memory loading a Waymo segment takes, known before loading it.
 
 Rays are kept as float64 origins and directions plus range, intensity, time, flags (~73 bytes a
-ray, measured ~50-60 MB a frame with all five lidars, docs/waymo.md); images stay JPEG bytes. The
+ray, ~100 at the peak of decoding; docs/waymo.md); images stay JPEG bytes. The
 estimate counts the frames from the file's framing (v1, headers only) or the pose table (v2), so it
 reads nothing large.
 """
@@ -18,7 +18,9 @@ from idsplat_ns.errors import IDSplatError
 
 RANGE_IMAGE_SHAPES = {"TOP": (64, 2650), "FRONT": (200, 600), "SIDE_LEFT": (200, 600), "SIDE_RIGHT": (200, 600), "REAR": (200, 600)}
 """Beams x columns of each Waymo lidar's range image."""
-BYTES_PER_RAY = 73  # origins, directions, range, time: float64 x 8; intensity float32; returned, sensor, beam
+# 73 bytes are kept per ray (float64 origins, directions, range, time; float32 intensity; flags and
+# ids); decoding holds copies, so the measured peak is ~90-125 (bench/waymo_memory.py --by-lidars).
+BYTES_PER_RAY = 100
 SECOND_RETURN_SHARE = 0.05  # second returns are kept only where they hit: a few percent of the rays
 JPEG_BYTES_PER_FRAME = 5 * 350_000  # five cameras, for v2 where record sizes are not at hand
 
