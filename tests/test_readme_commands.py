@@ -65,7 +65,21 @@ def _idsplat_preprocess(args):
     return _tyro(PreprocessArgs, args)
 
 
+def _idsplat_edit(args):
+    from idsplat_ns.nerfstudio.edit_cli import parse_args
+
+    return parse_args(args)
+
+
+def _idsplat_export(args):
+    from idsplat_ns.nerfstudio.export_cli import parse_args
+
+    return parse_args(args)
+
+
 PARSERS = {
+    "idsplat-edit": _idsplat_edit,
+    "idsplat-export": _idsplat_export,
     "ns-train": _ns_train,
     "ns-eval": _ns_eval,
     "ns-viewer": _ns_viewer,

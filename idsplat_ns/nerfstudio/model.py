@@ -13,6 +13,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Dict, List, Optional, Tuple, Type
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from nerfstudio.cameras.cameras import Cameras
@@ -28,10 +29,12 @@ from idsplat_ns.model.gaussians import GaussianSet
 from idsplat_ns.model.initialisation import InitConfig
 from idsplat_ns.model.lidar_supervision import LidarConfig, LidarSupervisor, SweepRender, render_sweep, sweeps_of_frames
 from idsplat_ns.model.mcmc import MCMCConfig, MCMCDensifier, mcmc_regularisation
+from idsplat_ns.model.path_time import PathClock
 from idsplat_ns.model.scene_model import DecoderConfig, SceneModel
 from idsplat_ns.model.schedules import resolution_downscale
 from idsplat_ns.nerfstudio.dataparser import OPENCV_TO_OPENGL
 from idsplat_ns.nerfstudio.dataset import frames_of_split
+from idsplat_ns.nerfstudio.render_guard import check_render_tools
 
 CONSOLE = Console()
 GAUSSIAN_GROUPS = GaussianSet.PARAM_NAMES
@@ -85,6 +88,7 @@ class IDSplatModel(Model):
 
     def populate_modules(self) -> None:
         super().populate_modules()
+        check_render_tools()  # ns-render without ffmpeg: one line now, not after loading and rendering
         metadata = self.kwargs.get("metadata", {})
         scene = metadata["scene"]
         self.camera_names: List[str] = list(metadata["camera_names"])
@@ -114,6 +118,13 @@ class IDSplatModel(Model):
         # Render times: nerfstudio's viewer gives times in [0, 1] over the sequence.
         self.time_start = float(scene.frame_times[0])
         self.time_span = max(float(scene.frame_times[-1] - scene.frame_times[0]), 1e-6)
+        # Cameras without a time (ns-render's interpolated paths) get one from where they are.
+        by_sensor: Dict[str, list] = {}
+        for im in scene.images:
+            by_sensor.setdefault(im.camera, []).append(im)
+        self.path_clock = PathClock([np.stack([im.camera_to_world[:3, 3] for im in ims]) for ims in by_sensor.values()],
+                                    [np.array([im.time for im in ims]) for ims in by_sensor.values()])
+        self._noted_missing_time = False
         self.step = 0
         self._lpips = None
 
@@ -230,13 +241,21 @@ class IDSplatModel(Model):
         return viewmat, K, width, height
 
     def _render_time(self, camera: Cameras) -> Optional[float]:
-        """Seconds since the sequence start: the image's own time, else the viewer's [0, 1] slider."""
+        """Seconds since the sequence start: the image's own time, else the viewer's [0, 1] slider,
+        else (a camera path without times) the time of the nearest point of the recorded camera
+        paths (:class:`PathClock`), said once. Static scenes need no time."""
         meta = camera.metadata or {}
         if "time_seconds" in meta:
             return float(meta["time_seconds"].reshape(-1)[0])
         if camera.times is not None:
             return self.time_start + float(camera.times.reshape(-1)[0]) * self.time_span
-        return None
+        if not self.scene_model.has_instances:
+            return None
+        if not self._noted_missing_time:
+            CONSOLE.print("note: the camera path has no times; each camera is rendered at the time the recorded "
+                          "drive passed nearest to it (moving vehicles included)", soft_wrap=True)
+            self._noted_missing_time = True
+        return self.path_clock.time_of(camera.camera_to_worlds[0, :3, 3].detach().cpu().double().numpy())
 
     def get_outputs(self, camera: Cameras) -> Dict[str, Tensor]:  # type: ignore[override]
         if not isinstance(camera, Cameras) or camera.shape[0] != 1:

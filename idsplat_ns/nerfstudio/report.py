@@ -57,6 +57,8 @@ def main() -> None:
             console.print(f"[yellow]{results['lpips_note']}")
         if args.renders is not None:
             console.print(f"renders:    {args.renders.resolve()}")
+        for plot in results.get("plots", []):
+            console.print(f"plot:       {Path(plot).resolve()}")
         if args.checkpoint_dir is not None:
             ckpts = sorted(args.checkpoint_dir.glob("*.ckpt"))
             console.print(f"checkpoint: {ckpts[-1].resolve() if ckpts else args.checkpoint_dir}")

@@ -1,0 +1,161 @@
+"""idsplat-edit: remove, move, re-time or duplicate instances of a trained IDSplat run and write the
+result as a new run (config.yml + checkpoint) that ns-eval, ns-render and ns-viewer load.
+
+Edits are applied in a fixed order, whatever the order on the command line: removals, re-timings,
+moves, then duplicates (a duplicate copies the instance as already re-timed and moved). The maths
+is in :mod:`idsplat_ns.model.editing`; instance IDs are those of the checkpoint, as listed by
+``--list`` and shown in ns-eval's instance renders and plots.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+
+from rich.console import Console
+from rich.table import Table
+
+from idsplat_ns.errors import IDSplatError, run_cli
+
+EPILOG = """examples:
+  idsplat-edit --load-config outputs/x/idsplat-fast/T/config.yml --list
+  idsplat-edit --load-config CFG --output-dir edited --remove 3 5
+  idsplat-edit --load-config CFG --output-dir edited --move 2 0 3.5 0 0          # 3.5 m to its left
+  idsplat-edit --load-config CFG --output-dir edited --move 2 5 0 0 90 --frame world
+  idsplat-edit --load-config CFG --output-dir edited --retime 4 0.5 1.5           # 0.5 s later, 1.5x as fast
+  idsplat-edit --load-config CFG --output-dir edited --duplicate 1 0 -3.5 0      # a copy one lane over
+"""
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog="idsplat-edit", description=__doc__, epilog=EPILOG,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--load-config", type=Path, required=True, help="config.yml of the trained run")
+    p.add_argument("--output-dir", type=Path, default=None, help="folder of the edited run (needed for any edit)")
+    p.add_argument("--list", action="store_true", help="print the instances (after the edits, if any)")
+    p.add_argument("--points", action="store_true",
+                   help="with --list: also the lidar points and label of each instance, from the run's data "
+                        "(re-reads the data and its instance decomposition, cached: seconds to minutes)")
+    p.add_argument("--remove", type=int, nargs="+", default=[], metavar="ID", help="remove these instances")
+    p.add_argument("--move", type=float, nargs=5, action="append", default=[], metavar=("ID", "DX", "DY", "DZ", "DYAW"),
+                   help="shift by DX DY DZ metres and turn by DYAW degrees (repeatable)")
+    p.add_argument("--frame", choices=("instance", "world"), default="instance",
+                   help="axes of --move/--duplicate offsets: the instance's own (x forward, y left; yaw about "
+                        "its centre) or the world's (the path turns about its mean position)")
+    p.add_argument("--retime", type=float, nargs="+", action="append", default=[], metavar="ARG",
+                   help="ID SHIFT_S [SPEED]: start SHIFT_S seconds later and move SPEED times as fast "
+                        "(default 1; repeatable)")
+    p.add_argument("--duplicate", type=float, nargs=4, action="append", default=[], metavar=("ID", "DX", "DY", "DZ"),
+                   help="add a copy under a new ID, offset by DX DY DZ metres (repeatable)")
+    return p.parse_args(argv)
+
+
+def _instance_id(value: float, option: str) -> int:
+    if value != int(value) or value < 1:
+        raise IDSplatError(f"{option}: instance ID {value:g} is not a positive integer; see --list")
+    return int(value)
+
+
+def apply_edits(scene, args: argparse.Namespace) -> list[str]:
+    """Apply the command line's edits to ``scene`` (a SceneTensors); returns one line per edit."""
+    from idsplat_ns.model.editing import EditError
+
+    done: list[str] = []
+    try:
+        if args.remove:
+            scene.remove([_instance_id(i, "--remove") for i in args.remove])
+            done.append(f"removed {' '.join(map(str, args.remove))}")
+        for spec in args.retime:
+            if len(spec) not in (2, 3):
+                raise IDSplatError(f"--retime {' '.join(f'{v:g}' for v in spec)}: give ID SHIFT_S [SPEED]")
+            iid, shift, speed = _instance_id(spec[0], "--retime"), spec[1], spec[2] if len(spec) == 3 else 1.0
+            scene.retime(iid, shift, speed)
+            done.append(f"retimed {iid}: {shift:+g} s, x{speed:g}")
+        for iid, dx, dy, dz, dyaw in args.move:
+            iid = _instance_id(iid, "--move")
+            scene.move(iid, (dx, dy, dz), math.radians(dyaw), args.frame)
+            done.append(f"moved {iid}: ({dx:g}, {dy:g}, {dz:g}) m, {dyaw:g} deg, {args.frame} frame")
+        for iid, dx, dy, dz in args.duplicate:
+            iid = _instance_id(iid, "--duplicate")
+            new = scene.duplicate(iid, (dx, dy, dz), 0.0, args.frame)
+            done.append(f"duplicated {iid} as {new}: ({dx:g}, {dy:g}, {dz:g}) m, {args.frame} frame")
+    except EditError as err:
+        raise IDSplatError(f"{args.load_config}: {err}") from None
+    return done
+
+
+def instance_points(config) -> dict[int, tuple[int, str]]:
+    """``{instance_id: (lidar points, label)}`` of the run's instance decomposition, rebuilt from its
+    data as ns-eval does (stage caches make it cheap the second time). IDs that the data does not
+    have (duplicates) are absent."""
+    datamanager = config.pipeline.datamanager.setup(device="cpu", test_mode="inference")
+    tracks = datamanager.train_dataset.metadata.get("instance_tracks")
+    if tracks is None:
+        return {}
+    return {int(t.instance_id): (len(t.canonical_points), str(t.label)) for t in tracks.instances}
+
+
+def print_instances(scene, console: Console, points: dict[int, tuple[int, str]] | None = None) -> None:
+    from idsplat_ns.model.instance_summary import summarise_instances
+
+    rows = summarise_instances(scene)
+    static = int((scene.gaussians["instance_ids"] == 0).sum())
+    table = Table(title=f"{len(rows)} instances, {static} static Gaussians")
+    columns = ["ID", "class (guess)", "from (s)", "to (s)", "Gaussians", "speed (m/s)", "L x W x H (m)"]
+    if points is not None:
+        columns += ["lidar points", "label"]
+    for col in columns:
+        table.add_column(col, justify="left" if col in ("class (guess)", "label") else "right")
+    for r in rows:
+        size = " x ".join(f"{v:.1f}" for v in r.size)
+        cells = [str(r.instance_id), r.class_guess, f"{r.first_time:.2f}", f"{r.last_time:.2f}",
+                 str(r.num_gaussians), f"{r.mean_speed:.1f}", size]
+        if points is not None:
+            n, label = points.get(r.instance_id, (None, "?"))
+            cells += ["?" if n is None else str(n), label]
+        table.add_row(*cells)
+    console.print(table)
+
+
+def run(args: argparse.Namespace) -> Path | None:
+    from idsplat_ns.model.editing import EditError, SceneTensors
+    from idsplat_ns.nerfstudio.run_files import SCENE_PREFIX, load_run, write_run
+
+    edits_given = bool(args.remove or args.move or args.retime or args.duplicate)
+    if not edits_given and not args.list:
+        raise IDSplatError("nothing to do: give --list or an edit (--remove, --move, --retime, --duplicate)")
+    if edits_given and args.output_dir is None:
+        raise IDSplatError("--output-dir is needed to write the edited run; give a new folder")
+    trained = load_run(args.load_config)
+    try:
+        scene = SceneTensors.from_state_dict(trained.pipeline_state, SCENE_PREFIX)
+    except EditError as err:
+        raise IDSplatError(f"{trained.checkpoint_path}: {err}") from None
+    if edits_given and scene.trajectories is None:
+        raise IDSplatError(f"{args.load_config}: this run has no instances (a static model); nothing to edit")
+    console = Console()
+    if not console.is_terminal:  # piped or captured: rich would wrap the table at 80 columns
+        console = Console(width=140)
+    done = apply_edits(scene, args)
+    if args.points and not args.list:
+        raise IDSplatError("--points goes with --list")
+    if args.list:
+        print_instances(scene, console, instance_points(trained.config) if args.points else None)
+    if not edits_given:
+        return None
+    state = scene.to_state_dict(trained.pipeline_state, SCENE_PREFIX)
+    config_path = write_run(trained, state, args.output_dir, {"edits": done})
+    for line in done:
+        console.print(line)
+    console.print(f"edited run: {config_path}  (ns-eval / ns-render / ns-viewer --load-config {config_path})")
+    return config_path
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = parse_args(argv)
+    run_cli(lambda: run(args))
+
+
+if __name__ == "__main__":
+    main()
