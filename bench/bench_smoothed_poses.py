@@ -27,7 +27,8 @@ from idsplat_ns.data.tracks import box_corners
 from idsplat_ns.errors import IDSplatError
 from idsplat_ns.eval.instance_pose_errors import match_instance
 from idsplat_ns.instances.amodal_centre import AmodalCentreConfig
-from idsplat_ns.instances.modes import builtin_mask_stand_in
+from idsplat_ns.instances.masks.config import MaskConfig
+from idsplat_ns.instances.modes import ground_truth_masks
 from idsplat_ns.instances.ground import GroundSurface
 from idsplat_ns.instances.runner import (PreprocessConfig, ground_surface, registration_times, run_preprocessing,
                                          smooth_instance)
@@ -116,7 +117,7 @@ def main() -> None:
     results: dict[str, list] = {name: [] for name in variants}
     for seed, scene, train, cache in tqdm(training_streets(args, "idsplat_poses_"), total=len(args.seeds), desc="streets"):
         # The smoother's input: registered, parked ones converted, no smoothing, origins as registered.
-        config = builtin_mask_stand_in(scene, PreprocessConfig(smoothing=None, amodal=AmodalCentreConfig(enabled=False)))
+        config = ground_truth_masks(scene, PreprocessConfig(masks=MaskConfig(kind="ground-truth"), smoothing=None, amodal=AmodalCentreConfig(enabled=False)))
         train_scene = scene.subset(train)
         registered = run_preprocessing(train_scene, config, cache, progress=False, verbose=False).tracks
         times = np.asarray(registered.frame_times, np.float64)

@@ -3,10 +3,10 @@ starts from), on the synthetic street: CLEAR-MOT against the moving vehicles (th
 protocol of ``eval/trajectory_eval.py``, and all annotated ones) and a per-object table (matched
 instance, static/dynamic decision, offset of the canonical origin).
 
-    .venv/bin/python bench/bench_tracking.py --preset small --seeds 0 1
+    .venv/bin/python bench/bench_tracking.py --preset small --seeds 0 1 [--masks ground-truth]
 
 Uses the same frames as training (the dataparser's split) and the same preprocessing as
-``ns-train idsplat`` (the generator's 2D masks stand in for Grounded-SAM-2).
+``ns-train idsplat`` (masks from lidar motion; ``--masks ground-truth``: the generator's 2D masks).
 """
 
 from __future__ import annotations
@@ -55,11 +55,17 @@ def _object_rows(scene, tracks) -> list[str]:
 
 
 def main() -> None:
-    args = street_arguments(__doc__.splitlines()[0]).parse_args()
+    ap = street_arguments(__doc__.splitlines()[0])
+    ap.add_argument("--masks", default="auto", choices=["auto", "lidar-motion", "ground-truth"],
+                    help="mask source (auto: lidar-motion on the built-in street; ground-truth: its own 2D masks)")
+    args = ap.parse_args()
+    from idsplat_ns.instances.masks.config import MaskConfig
+
+    preprocess = PreprocessConfig(masks=MaskConfig(kind=args.masks))
     per_seq, per_seq_all = [], []
     for seed, scene, train, cache in training_streets(args, "idsplat_track_"):
         t0 = time.perf_counter()
-        tracks = instance_tracks_for_mode(scene, "self-supervised", train, PreprocessConfig(), cache)
+        tracks = instance_tracks_for_mode(scene, "self-supervised", train, preprocess, cache)
         seconds = time.perf_counter() - t0
         traj = InstanceTrajectories.from_instance_tracks(tracks)
         summary = tracking_summary(scene, traj.positions_at)

@@ -25,19 +25,18 @@ InstanceMode = Literal["self-supervised", "oracle", "static"]
 CONSOLE = Console()
 
 
-def builtin_mask_stand_in(scene: Scene, config: PreprocessConfig) -> PreprocessConfig:
-    """On the synthetic street, with no Grounded-SAM-2 files and no mask folder given, use the
-    generator's 2D instance masks as the precomputed mask source: they stand in for the
-    detector's output (no model weights can be had offline). Lifting, registration and smoothing
-    stay self-supervised; no 3D box or track is read."""
-    masks = config.masks
-    wants_auto = masks.kind == "auto" and masks.grounded_sam2.detector_path is None and masks.precomputed.mask_dir is None
-    folder = None if scene.root is None else scene.root / "idsplat_extras" / "instance_masks"
-    if not (wants_auto and scene.source == "synthetic" and folder is not None and folder.is_dir()):
+def ground_truth_masks(scene: Scene, config: PreprocessConfig) -> PreprocessConfig:
+    """``--masks.kind ground-truth``: the built-in street's own 2D instance masks as the mask folder
+    (an ablation: perfect masks in place of a detector's). Other kinds are returned unchanged."""
+    if config.masks.kind != "ground-truth":
         return config
-    CONSOLE.print("[yellow]note: no Grounded-SAM-2 files given; the synthetic street's 2D instance masks stand in for its output")
+    folder = None if scene.root is None else scene.root / "idsplat_extras" / "instance_masks"
+    if folder is None or not folder.is_dir():
+        raise IDSplatError(f"--masks.kind ground-truth: {scene.root} has no idsplat_extras/instance_masks; "
+                           "only the built-in street (idsplat-synth) has ground-truth masks")
+    CONSOLE.print("[yellow]ablation: ground-truth 2D instance masks of the built-in street (--masks.kind ground-truth), not a detector's")
     pre = PrecomputedMasksConfig(mask_dir=folder, instances_json=folder.parent / "instances.json")
-    return replace(config, masks=replace(masks, kind="precomputed", precomputed=pre))
+    return replace(config, masks=replace(config.masks, kind="precomputed", precomputed=pre))
 
 
 def instance_tracks_for_mode(
@@ -64,5 +63,8 @@ def instance_tracks_for_mode(
         return oracle_instance_tracks(train_scene)
     if mode != "self-supervised":
         raise ValueError(f"unknown instance mode {mode!r}")
-    config = builtin_mask_stand_in(scene, preprocess)
-    return run_preprocessing(train_scene, config, cache_dir, progress=True, verbose=True).tracks
+    config = ground_truth_masks(scene, preprocess)
+    tracks = run_preprocessing(train_scene, config, cache_dir, progress=True, verbose=True).tracks
+    if preprocess.masks.kind == "ground-truth":
+        tracks.metadata["mask_source"] = "ground-truth (ablation)"
+    return tracks

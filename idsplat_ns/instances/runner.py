@@ -248,6 +248,9 @@ def run_preprocessing(
     t0 = time.perf_counter()
     scene_key = scene_fingerprint(scene)
     mask_kind = resolve_mask_kind(config.masks)
+    if config.masks.kind == "auto" and mask_kind == "lidar-motion" and verbose:
+        print("note: no Grounded-SAM-2 files and no mask folder given: instances come from lidar motion "
+              "(--masks.kind lidar-motion; docs/instances.md)")
     source = make_mask_source(mask_kind, config.masks)
     mask_key = hash_json({"scene": scene_key, "source": source.cache_key()})
     cached = True

@@ -78,6 +78,28 @@ class IDSplatPipeline(VanillaPipeline):
         out["lidar_num_sweeps"] = len(per_sweep)
         return out
 
+    def _write_plots(self, folder: Path, per_image: list) -> list[str]:
+        """Plots of the evaluation (ns-eval with --render-output-path only): the top view of the
+        learned trajectories with their IDs, the annotated moving vehicles and the ego path, each
+        instance's position error over time, and PSNR / DPSNR per held-out image."""
+        from idsplat_ns.eval.metric_plots import plot_per_image
+        from idsplat_ns.eval.trajectory_eval import ground_truth_positions, predicted_positions
+        from idsplat_ns.eval.trajectory_plots import plot_position_errors, plot_scene_top_view
+
+        scene = self.datamanager.scene
+        trajectories = self.model.scene_model.trajectories
+        with torch.no_grad():
+            pred = predicted_positions(scene, trajectories.positions_at) if trajectories is not None else {}
+        gt = ground_truth_positions(scene)
+        title = f"{scene.name}: top view"
+        top = plot_scene_top_view(gt, pred, scene.ego_poses[:, :3, 3], folder / "plots" / "trajectories_top.png", title)
+        plots = [top]
+        if pred:
+            plots.append(plot_position_errors(gt, pred, folder / "plots" / "position_errors.png",
+                                              f"{scene.name}: instance position error against the nearest annotated track"))
+        plots.append(plot_per_image(per_image, folder / "plots" / "per_image_psnr.png", f"{scene.name}: held-out images"))
+        return [str(p) for p in plots]
+
     def get_average_image_metrics(self, data_loader, image_prefix: str, step: Optional[int] = None,
                                   output_path: Optional[Path] = None, get_std: bool = False):
         self.eval()
@@ -113,6 +135,16 @@ class IDSplatPipeline(VanillaPipeline):
         result.pop("num_rays_per_sec_std", None)
         result.update(self._tracking_metrics())
         result.update(lidar)
+        if output_path is not None and step is None:  # ns-eval writing renders: the plots go beside them
+            result["plots"] = self._write_plots(output_path, per_image)
+            CONSOLE.print(f"plots: {', '.join(result['plots'])}")
+        if step is None:  # ns-eval's JSON says which protocol and instance source the result belongs to
+            meta = self.datamanager.train_dataparser_outputs.metadata
+            result["protocol"] = meta.get("protocol") or "none (the dataparser's own split options)"
+            result["instance_mode"] = self.datamanager.train_dataset.metadata.get("instance_mode")
+            tracks = self.datamanager.train_dataset.metadata.get("instance_tracks")
+            if tracks is not None and tracks.metadata.get("mask_source"):
+                result["mask_source"] = tracks.metadata["mask_source"]
         if "lpips" not in result and step is None:
             # Only for ns-eval's JSON (step None): the trainer logs metrics as scalars.
             result["lpips_note"] = LPIPS_NOTE

@@ -9,9 +9,10 @@ from idsplat_ns.errors import IDSplatError
 from idsplat_ns.instances.masks.base import MaskSource
 from idsplat_ns.instances.masks.gt_boxes import GtBoxMasksConfig
 from idsplat_ns.instances.masks.grounded_sam2_onnx import GroundedSam2Config
+from idsplat_ns.instances.lidar_motion import LidarMotionConfig
 from idsplat_ns.instances.masks.precomputed import PrecomputedMasksConfig
 
-MaskKind = Literal["auto", "grounded_sam2", "precomputed", "gt_boxes"]
+MaskKind = Literal["auto", "grounded_sam2", "precomputed", "lidar-motion", "ground-truth", "gt_boxes"]
 
 
 @dataclass(frozen=True)
@@ -20,14 +21,19 @@ class MaskConfig:
 
     kind: MaskKind = "auto"
     """``grounded_sam2`` (the paper's; needs the ONNX files), ``precomputed`` (a mask folder),
+    ``lidar-motion`` (moving lidar clusters projected into the images: no model files, no
+    annotations), ``ground-truth`` (the built-in street's own 2D masks: an ablation),
     ``gt_boxes`` (oracle: projected ground-truth boxes, for ablations only) or ``auto``:
-    Grounded-SAM-2 when its detector file is given, else precomputed when a mask folder is given."""
+    Grounded-SAM-2 when its detector file is given, else precomputed when a mask folder is given,
+    else lidar-motion."""
     grounded_sam2: GroundedSam2Config = field(default_factory=GroundedSam2Config)
     """Grounded-SAM-2 model files and thresholds."""
     precomputed: PrecomputedMasksConfig = field(default_factory=PrecomputedMasksConfig)
     """The precomputed mask folder."""
     gt_boxes: GtBoxMasksConfig = field(default_factory=GtBoxMasksConfig)
     """Oracle settings."""
+    lidar_motion: LidarMotionConfig = field(default_factory=LidarMotionConfig)
+    """Settings of the lidar-motion source."""
 
 
 def resolve_mask_kind(config: MaskConfig) -> str:
@@ -38,10 +44,7 @@ def resolve_mask_kind(config: MaskConfig) -> str:
         return "grounded_sam2"
     if config.precomputed.mask_dir is not None:
         return "precomputed"
-    raise IDSplatError(
-        "no mask source: give the Grounded-SAM-2 ONNX files (--masks.grounded-sam2.detector-path and friends) "
-        "or a folder of precomputed masks (--masks.precomputed.mask-dir)"
-    )
+    return "lidar-motion"
 
 
 def make_mask_source(kind: str, config: MaskConfig) -> MaskSource:
@@ -58,4 +61,10 @@ def make_mask_source(kind: str, config: MaskConfig) -> MaskSource:
         from idsplat_ns.instances.masks.gt_boxes import GtBoxMaskSource
 
         return GtBoxMaskSource(config.gt_boxes)
-    raise IDSplatError(f"--masks.kind {kind!r} is unknown; use auto, grounded_sam2, precomputed or gt_boxes")
+    if kind == "lidar-motion":
+        from idsplat_ns.instances.lidar_motion import LidarMotionMaskSource
+
+        return LidarMotionMaskSource(config.lidar_motion)
+    if kind == "ground-truth":
+        raise IDSplatError("--masks.kind ground-truth: resolve it on the scene first (instances.modes.ground_truth_masks)")
+    raise IDSplatError(f"--masks.kind {kind!r} is unknown; use auto, grounded_sam2, precomputed, lidar-motion, ground-truth or gt_boxes")

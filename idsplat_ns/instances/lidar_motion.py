@@ -1,0 +1,369 @@
+"""Moving objects found in the lidar alone: no model weights, no annotations (beyond the paper, for
+users with no Grounded-SAM-2 files or no GPU).
+
+1. **Ground**: each 0.5 m cell's height is a low rank of the points of all sweeps falling in it (the
+   road is seen wherever a car has moved away); points more than ``min_height`` above it are kept.
+2. **Clusters**: DBSCAN (scikit-learn) of each sweep's kept points; clusters of object size survive.
+3. **Free space**: a cluster point seen at time t is tested against sweeps ``evidence_offsets_s``
+   before and after: the ray of that sweep nearest in direction to the point either ends near it
+   (occupied then: static evidence), passes beyond it or returns nothing (free then: the object
+   has moved), or ends before it (occluded: no evidence). The cluster's motion score is the share
+   of free among free + occupied.
+4. **Tracks**: clusters are associated over sweeps by their centroids (constant-velocity
+   prediction, Hungarian assignment within a gate); a track is moving when its median motion score
+   exceeds ``moving_score``. Parked cars, poles and walls fail the test.
+5. **Masks**: each moving track's points, moved by its velocity to the image time, are projected
+   into every camera and filled as their convex hull (nearer over farther), written in the mask
+   folder format, so that lifting, registration and smoothing take them unchanged.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+from scipy.spatial import cKDTree
+from tqdm import tqdm
+
+from idsplat_ns.data.lidar import LidarSweep
+from idsplat_ns.data.scene import Scene
+from idsplat_ns.errors import IDSplatError
+from idsplat_ns.instances.masks.base import InstanceMaskSet, MaskSource, mask_filename, write_instance_map, write_labels
+
+
+@dataclass(frozen=True)
+class LidarMotionConfig:
+    """Settings of the lidar-motion instance source."""
+
+    max_range: float = 60.0
+    """Metres from the sensor: farther points are ignored (too sparse to cluster)."""
+    ground_cell: float = 0.5
+    """Metres: side of the ground height cells."""
+    ground_rank: int = 2
+    """A cell's ground height is its ``ground_rank``-th lowest point (the lowest are noise)."""
+    min_height: float = 0.3
+    """Metres above the ground a point must be to belong to an object."""
+    max_height: float = 4.0
+    """Metres above the ground above which points are ignored (tree tops, bridges)."""
+    cluster_eps: float = 0.7
+    """DBSCAN neighbourhood radius, metres."""
+    cluster_min_samples: int = 5
+    """DBSCAN core-point neighbour count."""
+    min_points: int = 15
+    """Clusters with fewer points are dropped."""
+    max_extent: float = 14.0
+    """Metres: clusters longer than this on the ground are structure, not a road user."""
+    min_footprint: float = 0.4
+    """Metres: clusters narrower than this on the ground in every direction are poles and posts
+    (too thin for the free-space test: rays of other sweeps pass beside them)."""
+    max_direction_error: float = 0.006
+    """Radians: a ray of another sweep tests a point only when its direction is this close."""
+    free_margin: float = 0.4
+    """Metres: a ray ending farther than the point by this passed through it (free space)."""
+    evidence_offsets_s: tuple[float, ...] = (-1.0, -0.5, 0.5, 1.0)
+    """Seconds: sweeps at these offsets (the nearest to each) give free-space evidence."""
+    min_evidence: int = 8
+    """Points with evidence needed for a cluster's motion score to count."""
+    moving_score: float = 0.6
+    """A track whose median motion score exceeds this is moving."""
+    min_displacement: float = 1.5
+    """Metres: a moving track's centroid must travel at least this far over its life."""
+    merge_distance: float = 1.5
+    """Metres: moving tracks whose clusters come this close in every shared sweep, at similar
+    velocity, are parts of one object (a car seen in two pieces around an occluder) and merge."""
+    association_gate: float = 2.5
+    """Metres: largest centroid distance to a track's prediction for an association."""
+    max_missed_frames: int = 3
+    """A track not associated for this many sweeps ends."""
+    min_track_frames: int = 3
+    """Moving tracks seen in fewer sweeps are dropped."""
+    mask_dilation_px: int = 3
+    """Pixels by which the projected hull is grown (lidar points sit inside the silhouette)."""
+
+
+@dataclass
+class MotionCluster:
+    """One cluster of one sweep."""
+
+    frame: int
+    """Index into the scene's sweeps."""
+    points: np.ndarray
+    """[N, 3] world points."""
+    times: np.ndarray
+    """[N] seconds, when each point's ray was fired."""
+    score: float = float("nan")
+    """Share of free-space evidence (NaN: too little evidence)."""
+
+    @property
+    def centroid(self) -> np.ndarray:  # -> [3]
+        return self.points.mean(0)
+
+
+@dataclass
+class MotionTrack:
+    """Clusters associated over sweeps."""
+
+    track_id: int
+    clusters: list[MotionCluster] = field(default_factory=list)
+    velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    """[3] m/s, from the last associations."""
+
+    def median_score(self) -> float:
+        scores = [c.score for c in self.clusters if np.isfinite(c.score)]
+        return float(np.median(scores)) if scores else float("nan")
+
+    def displacement(self) -> float:
+        """Metres between the first and the last centroid on the ground."""
+        return float(np.linalg.norm(self.clusters[-1].centroid[:2] - self.clusters[0].centroid[:2]))
+
+    def label(self) -> str:
+        """A class guess from the footprint (the source has no detector label)."""
+        pts = max(self.clusters, key=lambda c: len(c.points)).points
+        extent = np.ptp(pts[:, :2], axis=0)
+        length, width = float(extent.max()), float(extent.min())
+        if length < 1.2 and width < 1.0:
+            return "pedestrian"
+        if length < 2.4 and width < 1.2:
+            return "cyclist"
+        return "truck" if length > 6.5 else "car"
+
+
+def ground_heights(sweeps: list[LidarSweep], cell: float, rank: int) -> tuple[np.ndarray, np.ndarray]:
+    """Sorted cell keys [C] and their ground heights [C] from all sweeps' returned points."""
+    pts = np.concatenate([s.points for s in sweeps])
+    keys = _cell_keys(pts[:, :2], cell)
+    order = np.lexsort((pts[:, 2], keys))
+    keys, z = keys[order], pts[order, 2]
+    starts = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
+    counts = np.diff(np.r_[starts, len(keys)])
+    pick = starts + np.minimum(rank, counts - 1)
+    return keys[starts], z[pick]
+
+
+def _cell_keys(xy: np.ndarray, cell: float) -> np.ndarray:  # xy: [N, 2] -> [N] int64
+    ij = np.floor(xy / cell).astype(np.int64)
+    return (ij[:, 0] << 32) + (ij[:, 1] & 0xFFFFFFFF)
+
+
+def object_points(sweep: LidarSweep, ground_keys: np.ndarray, ground_z: np.ndarray, config: LidarMotionConfig):
+    """World points [M, 3] and times [M] of a sweep that stand above the ground, within range."""
+    ret = sweep.returned & (sweep.ranges <= config.max_range)
+    pts, times = sweep.origins[ret] + sweep.directions[ret] * sweep.ranges[ret, None], sweep.times[ret]
+    idx = np.clip(np.searchsorted(ground_keys, _cell_keys(pts[:, :2], config.ground_cell)), 0, len(ground_keys) - 1)
+    height = pts[:, 2] - ground_z[idx]
+    keep = (height > config.min_height) & (height < config.max_height)
+    return pts[keep], times[keep]
+
+
+def cluster_sweep(points: np.ndarray, times: np.ndarray, frame: int, config: LidarMotionConfig) -> list[MotionCluster]:
+    """Object-sized DBSCAN clusters of one sweep's above-ground points."""
+    from sklearn.cluster import DBSCAN
+
+    if len(points) < config.min_points:
+        return []
+    labels = DBSCAN(eps=config.cluster_eps, min_samples=config.cluster_min_samples).fit_predict(points)
+    out = []
+    for lab in np.unique(labels[labels >= 0]):
+        sel = labels == lab
+        extent = np.ptp(points[sel, :2], axis=0).max()
+        if sel.sum() < config.min_points or not config.min_footprint <= extent <= config.max_extent:
+            continue
+        out.append(MotionCluster(frame, points[sel], times[sel]))
+    return out
+
+
+class _SweepRays:
+    """Direction lookup of one sweep's rays (a KD-tree on unit directions)."""
+
+    def __init__(self, sweep: LidarSweep):
+        self.origin = sweep.sensor_to_world[:3, 3]
+        self.tree = cKDTree(sweep.directions)
+        self.ranges = np.where(sweep.returned, sweep.ranges, np.inf)  # no return: free to the end
+
+    def evidence(self, points: np.ndarray, config: LidarMotionConfig) -> tuple[int, int]:
+        """(free, occupied) counts of ``points`` [N, 3] as seen by this sweep.
+
+        The few rays nearest in direction decide together: free only when every one passes beyond
+        the point (a single grazing ray beside a thin pole must not call it free), occupied when
+        any ends near it."""
+        offset = points - self.origin
+        dist = np.linalg.norm(offset, axis=1)
+        gap, idx = self.tree.query(offset / dist[:, None], k=4, distance_upper_bound=config.max_direction_error)
+        found = np.isfinite(gap)  # [N, 4]
+        r = np.where(found, self.ranges[np.minimum(idx, len(self.ranges) - 1)], np.nan)
+        d = dist[:, None]
+        seen = found.any(1)
+        beyond = np.where(found, r > d + config.free_margin, True).all(1) & seen
+        near = (found & (np.abs(r - d) <= config.free_margin)).any(1)
+        return int(beyond.sum()), int(near.sum())
+
+
+def score_clusters(clusters_per_sweep: list[list[MotionCluster]], sweeps: list[LidarSweep], config: LidarMotionConfig) -> None:
+    """Set each cluster's free-space motion score from the sweeps at the evidence offsets."""
+    times = np.array([s.time for s in sweeps])
+    rays: dict[int, _SweepRays] = {}
+    for k, clusters in enumerate(clusters_per_sweep):
+        others = {int(np.argmin(np.abs(times - (times[k] + dt)))) for dt in config.evidence_offsets_s} - {k}
+        for cluster in clusters:
+            free = occupied = 0
+            for j in others:
+                if j not in rays:
+                    rays[j] = _SweepRays(sweeps[j])
+                f, o = rays[j].evidence(cluster.points, config)
+                free, occupied = free + f, occupied + o
+            if free + occupied >= config.min_evidence:
+                cluster.score = free / (free + occupied)
+
+
+def associate(clusters_per_sweep: list[list[MotionCluster]], sweep_times: np.ndarray, config: LidarMotionConfig) -> list[MotionTrack]:
+    """Tracks of clusters over sweeps: constant-velocity prediction and Hungarian assignment."""
+    tracks: list[MotionTrack] = []
+    active: list[MotionTrack] = []
+    for k, clusters in enumerate(clusters_per_sweep):
+        t = sweep_times[k]
+        active = [tr for tr in active if k - tr.clusters[-1].frame <= config.max_missed_frames]
+        matched: set[int] = set()
+        if active and clusters:
+            pred = np.stack([tr.clusters[-1].centroid + tr.velocity * (t - sweep_times[tr.clusters[-1].frame]) for tr in active])
+            cent = np.stack([c.centroid for c in clusters])
+            cost = np.linalg.norm(pred[:, None, :2] - cent[None, :, :2], axis=-1)
+            rows, cols = linear_sum_assignment(np.where(cost <= config.association_gate, cost, 1e6))
+            for r, c in zip(rows, cols):
+                if cost[r, c] > config.association_gate:
+                    continue
+                tr, last = active[r], active[r].clusters[-1]
+                dt = t - sweep_times[last.frame]
+                if dt > 0:
+                    tr.velocity = (clusters[c].centroid - last.centroid) / dt
+                tr.clusters.append(clusters[c])
+                matched.add(c)
+        for c, cluster in enumerate(clusters):
+            if c not in matched:
+                track = MotionTrack(track_id=len(tracks) + 1, clusters=[cluster])
+                tracks.append(track)
+                active.append(track)
+    return tracks
+
+
+def moving_tracks(scene: Scene, config: LidarMotionConfig, progress: bool = False) -> list[MotionTrack]:
+    """The moving objects of ``scene``'s lidar, numbered 1..N in order of first appearance."""
+    sweeps = [s for s in scene.lidar if s.num_rays > 0]
+    if not sweeps:
+        raise IDSplatError(f"scene {scene.name}: no lidar sweeps; the lidar-motion instance source needs lidar")
+    keys, heights = ground_heights(sweeps, config.ground_cell, config.ground_rank)
+    clusters = []
+    for k, sweep in enumerate(tqdm(sweeps, desc="lidar motion: clusters", unit="sweep", disable=not progress)):
+        pts, times = object_points(sweep, keys, heights, config)
+        clusters.append(cluster_sweep(pts, times, k, config))
+    score_clusters(clusters, sweeps, config)
+    tracks = associate(clusters, np.array([s.time for s in sweeps]), config)
+    moving = [tr for tr in tracks if len(tr.clusters) >= config.min_track_frames and tr.median_score() > config.moving_score
+              and tr.displacement() >= config.min_displacement]
+    moving = merge_parts(moving, config)
+    for n, tr in enumerate(moving, start=1):
+        tr.track_id = n
+    return moving
+
+
+def _parts_of_one_object(a: MotionTrack, b: MotionTrack, config: LidarMotionConfig) -> bool:
+    frames_a = {c.frame: c for c in a.clusters}
+    shared = [(frames_a[c.frame], c) for c in b.clusters if c.frame in frames_a]
+    if not shared:
+        return False
+    # Velocities over the shared sweeps (a short fragment's last-step velocity is noisy).
+    if len(shared) >= 2:
+        (a0, b0), (a1, b1) = shared[0], shared[-1]
+        steps = max(a1.frame - a0.frame, 1)
+        va, vb = (a1.centroid - a0.centroid) / steps, (b1.centroid - b0.centroid) / steps
+        if np.linalg.norm(va[:2] - vb[:2]) > 0.3:  # metres per sweep (~3 m/s at 10 Hz)
+            return False
+    elif np.linalg.norm(a.velocity[:2] - b.velocity[:2]) > 3.0:
+        return False
+    for ca, cb in shared:
+        gap, _ = cKDTree(ca.points).query(cb.points, k=1)
+        if gap.min() > config.merge_distance:
+            return False
+    return True
+
+
+def merge_parts(tracks: list[MotionTrack], config: LidarMotionConfig) -> list[MotionTrack]:
+    """Tracks that are parts of one object (see ``merge_distance``) merged, clusters of a sweep joined."""
+    parent = list(range(len(tracks)))
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            i = parent[i]
+        return i
+
+    for i in range(len(tracks)):
+        for j in range(i + 1, len(tracks)):
+            if root(i) != root(j) and _parts_of_one_object(tracks[i], tracks[j], config):
+                parent[root(j)] = root(i)
+    groups: dict[int, list[MotionTrack]] = {}
+    for i, tr in enumerate(tracks):
+        groups.setdefault(root(i), []).append(tr)
+    merged = []
+    for members in groups.values():
+        by_frame: dict[int, list[MotionCluster]] = {}
+        for tr in members:
+            for c in tr.clusters:
+                by_frame.setdefault(c.frame, []).append(c)
+        clusters = [MotionCluster(f, np.concatenate([c.points for c in cs]), np.concatenate([c.times for c in cs]),
+                                  float(np.nanmax([c.score for c in cs] + [np.nan])) if any(np.isfinite(c.score) for c in cs) else float("nan"))
+                    for f, cs in sorted(by_frame.items())]
+        longest = max(members, key=lambda t: len(t.clusters))
+        merged.append(MotionTrack(longest.track_id, clusters, longest.velocity))
+    return sorted(merged, key=lambda t: t.clusters[0].frame)
+
+
+def render_track_masks(scene: Scene, tracks: list[MotionTrack], config: LidarMotionConfig, out_dir: Path,
+                       progress: bool = False) -> None:
+    """Write one instance map per image: each track's points at the image time, hull-filled."""
+    sweep_frames = [s.frame_index for s in scene.lidar if s.num_rays > 0]
+    by_frame: dict[int, list[tuple[MotionTrack, MotionCluster]]] = {}
+    for tr in tracks:
+        for c in tr.clusters:
+            by_frame.setdefault(sweep_frames[c.frame], []).append((tr, c))
+    kernel = np.ones((2 * config.mask_dilation_px + 1,) * 2, np.uint8) if config.mask_dilation_px > 0 else None
+    for image in tqdm(scene.images, desc="lidar motion: masks", unit="image", disable=not progress):
+        K = image.intrinsics
+        ids = np.zeros((K.height, K.width), np.uint16)
+        items = []
+        for tr, c in by_frame.get(image.frame_index, []):
+            pts = c.points + tr.velocity[None] * (image.time - c.times)[:, None]  # to the image time
+            proj = image.project(pts)
+            if proj.valid.sum() >= 3:
+                items.append((float(np.median(proj.depth[proj.valid])), tr.track_id, proj.uv[proj.valid]))
+        for _, track_id, uv in sorted(items, key=lambda x: -x[0]):  # far to near: near objects win
+            hull = cv2.convexHull(np.round(uv).astype(np.int32))
+            layer = np.zeros_like(ids, np.uint8)
+            cv2.fillConvexPoly(layer, hull, 1)
+            if kernel is not None:
+                layer = cv2.dilate(layer, kernel)
+            ids[layer > 0] = track_id
+        write_instance_map(out_dir / mask_filename(image.camera, image.frame_index), ids)
+
+
+class LidarMotionMaskSource(MaskSource):
+    """Instance masks from moving lidar clusters (no model files, no annotations)."""
+
+    name = "lidar-motion"
+
+    def __init__(self, config: LidarMotionConfig):
+        self.config = config
+
+    def cache_key(self) -> dict:
+        return {"kind": self.name, **asdict(self.config)}
+
+    def generate(self, scene: Scene, out_dir: Path, progress: bool = True) -> InstanceMaskSet:
+        out_dir = Path(out_dir)
+        out_dir.mkdir(parents=True, exist_ok=True)
+        tracks = moving_tracks(scene, self.config, progress)
+        render_track_masks(scene, tracks, self.config, out_dir, progress)
+        labels = {tr.track_id: tr.label() for tr in tracks}
+        write_labels(out_dir, labels, {tr.track_id: {"frames": len(tr.clusters), "motion_score": tr.median_score()} for tr in tracks})
+        return InstanceMaskSet(out_dir, labels, self.name)
+
