@@ -12,7 +12,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from idsplat_ns.atomic import atomic_path
+from idsplat_ns.eval.trajectory_plots import save_figure
 from idsplat_ns.errors import IDSplatError
 
 
@@ -36,8 +36,4 @@ def plot_per_image(per_image: Sequence[dict], path: str | os.PathLike, title: st
     ax.legend(loc="best", fontsize=7)
     if title:
         ax.set_title(title)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png")
-    return path
+    return save_figure(fig, path)

@@ -16,6 +16,15 @@ from idsplat_ns.atomic import atomic_path
 from idsplat_ns.eval.tracking import Track, frame_sort_key
 
 
+
+def save_figure(fig: Figure, path: Path) -> Path:
+    """Lay out ``fig`` and write it to ``path`` as PNG, atomically (the folder is made)."""
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
+    return path
+
 def tracks_by_id(frames: Track) -> dict[object, np.ndarray]:
     """Regroup ``{frame: {id: xyz}}`` into ``{id: positions [N, 2+]}`` in frame order."""
     out: dict[object, list[np.ndarray]] = {}
@@ -72,11 +81,7 @@ def plot_trajectories(
     FigureCanvasAgg(fig)
     for k, (name, gt, pred) in enumerate(sequences):
         _panel(fig.add_subplot(rows, cols, k + 1), gt, pred, name)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png")
-    return path
+    return save_figure(fig, path)
 
 
 def plot_scene_top_view(
@@ -94,11 +99,7 @@ def plot_scene_top_view(
     fig = Figure(figsize=(size, size), dpi=110)
     FigureCanvasAgg(fig)
     _panel(fig.add_subplot(1, 1, 1), gt, pred, title or None, ego=np.asarray(ego, dtype=np.float64), label_ids=True)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png")
-    return path
+    return save_figure(fig, path)
 
 
 def position_errors(gt: Track, pred: Track) -> dict[object, tuple[np.ndarray, np.ndarray]]:
@@ -140,8 +141,4 @@ def plot_position_errors(gt: Track, pred: Track, path: str | os.PathLike, title:
         ax.legend(loc="best", fontsize=7, ncol=max(1, len(errors) // 8))
     if title:
         ax.set_title(title)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png")
-    return path
+    return save_figure(fig, path)
