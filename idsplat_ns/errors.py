@@ -8,8 +8,10 @@ from __future__ import annotations
 
 import atexit
 import os
+import shutil
 import sys
-from typing import Callable, TypeVar
+from pathlib import Path
+from typing import Callable, Optional, TypeVar
 
 T = TypeVar("T")
 
@@ -27,8 +29,54 @@ def run_cli(main: Callable[[], T]) -> T:
         raise SystemExit(2) from None
 
 
+_run_dirs: list[tuple[Path, Path]] = []
+"""(run folder, output root) of runs this process created; removed if it fails before a checkpoint."""
+
+
+def register_run_dir(run_dir: Path, output_root: Path) -> None:
+    """Remember a run folder this process has just created (``ns-train`` writes config.yml first).
+
+    If the process then dies of an uncaught exception before any checkpoint exists, the hook
+    removes the folder and its parents up to ``output_root`` that it leaves empty, so failed runs
+    do not pile up as ``outputs/<name>/<method>/<timestamp>/config.yml`` runs that never were.
+    """
+    _run_dirs.append((Path(run_dir), Path(output_root)))
+
+
+def remove_failed_runs() -> list[Path]:
+    """Remove the registered run folders that hold no checkpoint; returns those removed."""
+    removed = []
+    while _run_dirs:
+        run_dir, root = _run_dirs.pop()
+        if not run_dir.is_dir() or next(run_dir.rglob("*.ckpt"), None) is not None:
+            continue  # a checkpoint makes the run resumable: keep it
+        shutil.rmtree(run_dir, ignore_errors=True)
+        removed.append(run_dir)
+        parent = run_dir.parent
+        root = root.resolve()
+        while parent.resolve() != root and root in parent.resolve().parents:
+            try:
+                parent.rmdir()  # only if empty: other runs of the same experiment stay
+            except OSError:
+                break
+            parent = parent.parent
+    return removed
+
+
+def _one_line(exc_type: type, exc: BaseException) -> Optional[str]:
+    """The one-line message of an expected failure, None for a bug (which keeps its traceback)."""
+    if issubclass(exc_type, IDSplatError):
+        return str(exc)
+    if issubclass(exc_type, FileNotFoundError) and getattr(exc, "filename", None):
+        # nerfstudio opens --load-config (ns-eval, ns-train, ns-render) without a check of its own.
+        return f"{exc.filename}: no such file; check the path (--load-config takes a run's config.yml)"
+    return None
+
+
 def install_excepthook() -> None:
-    """Make an uncaught :class:`IDSplatError` print one line (no traceback) and exit with status 2.
+    """Make an uncaught :class:`IDSplatError` (or a missing file) print one line (no traceback)
+    and exit with status 2; any uncaught exception also removes a run folder this process
+    registered that has no checkpoint yet (:func:`register_run_dir`).
 
     Used where the project does not own the entry point (``ns-train``, ``ns-eval``); every other
     exception keeps Python's usual report.
@@ -38,13 +86,17 @@ def install_excepthook() -> None:
         return
 
     def hook(exc_type, exc, tb):
-        if issubclass(exc_type, IDSplatError):
-            print(f"error: {exc}", file=sys.stderr)
+        message = _one_line(exc_type, exc)
+        if message is not None:
+            print(f"error: {message}", file=sys.stderr)
             sys.stderr.flush()
-            # Status 2 like run_cli. Exit handlers (log writers) run first; os._exit then ends the
-            # process even if a library left non-daemon threads (a viewer server) running.
+            # Status 2 like run_cli. Exit handlers (log writers) run first, then the failed run's
+            # folder goes; os._exit ends the process even if a library left non-daemon threads (a
+            # viewer server) running.
             atexit._run_exitfuncs()
+            remove_failed_runs()
             os._exit(2)
+        remove_failed_runs()
         previous(exc_type, exc, tb)
 
     hook._idsplat = True  # type: ignore[attr-defined]

@@ -11,7 +11,6 @@ from __future__ import annotations
 import torch
 from nerfstudio.configs.base_config import MachineConfig, ViewerConfig
 from nerfstudio.engine.optimizers import AdamOptimizerConfig
-from nerfstudio.engine.trainer import TrainerConfig
 from nerfstudio.plugins.types import MethodSpecification
 
 import idsplat_ns._compat.startup as _startup
@@ -20,6 +19,7 @@ from idsplat_ns.nerfstudio.datamanager import IDSplatDataManagerConfig
 from idsplat_ns.nerfstudio.model import IDSplatModelConfig
 from idsplat_ns.nerfstudio.pipeline import IDSplatPipelineConfig
 from idsplat_ns.nerfstudio.schedulers import ExponentialDecaySchedulerConfig
+from idsplat_ns.nerfstudio.trainer_config import IDSplatTrainerConfig
 
 _startup.install()
 install_excepthook()
@@ -61,7 +61,7 @@ def _optimizers(max_steps: int, warmup_scale: float = 1.0) -> dict:
     }
 
 
-def make_trainer_config(method_name: str, max_steps: int, resolution_schedule: tuple, fast: bool) -> TrainerConfig:
+def make_trainer_config(method_name: str, max_steps: int, resolution_schedule: tuple, fast: bool) -> IDSplatTrainerConfig:
     model = IDSplatModelConfig(resolution_schedule=resolution_schedule)
     if fast:
         model.num_random_points = 20_000
@@ -70,7 +70,8 @@ def make_trainer_config(method_name: str, max_steps: int, resolution_schedule: t
         # 0.35 s, docs/lidar.md): every fourth step keeps `make demo` near 10 minutes (the paper:
         # every step, which `idsplat` keeps).
         model.lidar.every_n_steps = 4
-    return TrainerConfig(
+    # IDSplatTrainerConfig: nerfstudio's, with the settings validated before the run folder is written.
+    return IDSplatTrainerConfig(
         method_name=method_name,
         steps_per_eval_image=max(max_steps // 10, 100),
         steps_per_eval_batch=0,

@@ -26,6 +26,16 @@ from idsplat_ns.data.geometry import make_pose, quat_to_rotmat, rot_z
 from idsplat_ns.data.lidar import LidarSweep, rays_from_points
 from idsplat_ns.data.scene import Scene, recentring_transform
 from idsplat_ns.data.tracks import ObjectTrack
+from idsplat_ns.data.validation import (
+    check_columns,
+    check_finite,
+    check_frame_counts,
+    check_image_sizes,
+    check_intrinsics,
+    check_pose,
+    check_quaternion,
+    check_timestamps,
+)
 from idsplat_ns.errors import IDSplatError
 
 PANDASET_CAMERAS = (
@@ -62,20 +72,57 @@ def read_pickle(path: Path) -> pd.DataFrame:
     return frame
 
 
-def pose_from_json(entry: dict) -> np.ndarray:
-    """A PandaSet pose dict ``{"position": {x,y,z}, "heading": {w,x,y,z}}`` as a 4x4 matrix."""
+def pose_from_json(entry: dict, where: str = "poses.json", frame: Optional[int] = None) -> np.ndarray:
+    """A PandaSet pose dict ``{"position": {x,y,z}, "heading": {w,x,y,z}}`` as a 4x4 matrix.
+
+    The values are validated here (finite position, non-zero quaternion), where the file and frame
+    are known, so a NaN pose stops the load in one line instead of training on NaN.
+    """
     p, h = entry["position"], entry["heading"]
-    R = quat_to_rotmat(np.array([h["w"], h["x"], h["y"], h["z"]], dtype=np.float64))
-    return make_pose(R, np.array([p["x"], p["y"], p["z"]], dtype=np.float64))
+    position = check_finite(np.array([p["x"], p["y"], p["z"]], dtype=np.float64), where, "position", frame)
+    q = check_quaternion(np.array([h["w"], h["x"], h["y"], h["z"]], dtype=np.float64), where, "heading", frame)
+    return check_pose(make_pose(quat_to_rotmat(q), position), where, "pose", frame)
 
 
 def read_poses(path: Path) -> np.ndarray:
     """All poses of a ``poses.json`` as [F, 4, 4]."""
     entries = read_json(path)
+    if not isinstance(entries, list) or not entries:
+        raise IDSplatError(f"{path}: expected a non-empty list of poses; re-download or regenerate it")
+    poses = []
+    for i, e in enumerate(entries):
+        try:
+            poses.append(pose_from_json(e, str(path), i))
+        except (KeyError, TypeError, ValueError) as err:
+            raise IDSplatError(
+                f"{path}: frame {i}: malformed pose entry ({err.__class__.__name__}: {err}); expected position x,y,z and heading w,x,y,z"
+            ) from None
+    return np.stack(poses)
+
+
+def read_timestamps(path: Path) -> np.ndarray:
+    """A ``timestamps.json`` as float64 seconds, checked finite and increasing."""
+    stamps = read_json(path)
     try:
-        return np.stack([pose_from_json(e) for e in entries])
+        values = np.asarray(stamps, dtype=np.float64)
+    except (TypeError, ValueError) as err:
+        raise IDSplatError(f"{path}: timestamps are not numbers ({err}); re-download or regenerate it") from None
+    if values.ndim != 1 or values.size == 0:
+        raise IDSplatError(f"{path}: expected a non-empty list of numbers, got shape {values.shape}")
+    return check_timestamps(values, str(path))
+
+
+def read_intrinsics(path: Path) -> dict[str, float]:
+    """fx, fy, cx, cy of an ``intrinsics.json``; the focal lengths checked here, the principal point
+    against the image size once the first image is opened."""
+    intr = read_json(path)
+    try:
+        values = {k: float(intr[k]) for k in ("fx", "fy", "cx", "cy")}
     except (KeyError, TypeError, ValueError) as err:
-        raise IDSplatError(f"{path}: malformed pose entry ({err}); expected position x,y,z and heading w,x,y,z") from None
+        raise IDSplatError(f"{path}: intrinsics need numbers fx, fy, cx, cy ({err.__class__.__name__}: {err})") from None
+    # Size unknown yet: a stand-in that accepts any principal point; _load_images checks it later.
+    check_intrinsics(values["fx"], values["fy"], 0.0, 0.0, 1, 1, str(path))
+    return values
 
 
 def cuboid_yaw_to_rotation(yaw: np.ndarray) -> np.ndarray:
@@ -88,8 +135,7 @@ def cuboid_yaw_to_rotation(yaw: np.ndarray) -> np.ndarray:
 
 
 def _sequence_frame_count(root: Path) -> int:
-    stamps = read_json(root / "lidar" / "timestamps.json")
-    return len(stamps)
+    return len(read_timestamps(root / "lidar" / "timestamps.json"))
 
 
 def _select_frames(num: int, start: int, end: Optional[int], path: Path) -> np.ndarray:
@@ -136,7 +182,7 @@ def load_sequence(
 
     num_frames = _sequence_frame_count(root)
     frames = _select_frames(num_frames, start, end, root)
-    lidar_times_raw = np.asarray(read_json(root / "lidar" / "timestamps.json"), dtype=np.float64)
+    lidar_times_raw = read_timestamps(root / "lidar" / "timestamps.json")
     lidar_poses_raw = read_poses(root / "lidar" / "poses.json")
     if len(lidar_poses_raw) != num_frames:
         raise IDSplatError(f"{root / 'lidar' / 'poses.json'}: {len(lidar_poses_raw)} poses for {num_frames} timestamps")
@@ -145,11 +191,13 @@ def load_sequence(
     cam_meta = {}
     for cam in cameras:
         folder = root / "camera" / cam
-        intr = read_json(folder / "intrinsics.json")
+        intr = read_intrinsics(folder / "intrinsics.json")
         poses = read_poses(folder / "poses.json")
-        stamps = np.asarray(read_json(folder / "timestamps.json"), dtype=np.float64)
-        if len(poses) < num_frames or len(stamps) < num_frames:
-            raise IDSplatError(f"{folder}: {len(poses)} poses / {len(stamps)} timestamps for {num_frames} frames")
+        stamps = read_timestamps(folder / "timestamps.json")
+        check_frame_counts(
+            {str(folder / "poses.json"): len(poses), str(folder / "timestamps.json"): len(stamps)},
+            num_frames, str(root / "lidar" / "timestamps.json"),
+        )
         cam_meta[cam] = (intr, poses, stamps)
     time_origin = min([lidar_times_raw[frames[0]]] + [m[2][frames[0]] for m in cam_meta.values()])
 
@@ -188,6 +236,7 @@ def load_sequence(
 
 def _load_images(root, frames, cameras, cam_meta, world_from_raw, time_origin) -> list[CameraImage]:
     images = []
+    first_size: dict[str, tuple[int, tuple[int, int]]] = {}
     for f in frames:
         for cam in cameras:
             intr, poses, stamps = cam_meta[cam]
@@ -195,6 +244,11 @@ def _load_images(root, frames, cameras, cam_meta, world_from_raw, time_origin) -
             if not path.is_file():
                 raise IDSplatError(f"{path}: missing image; the PandaSet sequence is incomplete")
             width, height = _image_size(path)
+            if cam not in first_size:  # the principal point can only be checked against a real size
+                first_size[cam] = (int(f), (width, height))
+                check_intrinsics(intr["fx"], intr["fy"], intr["cx"], intr["cy"], width, height,
+                                 str(root / "camera" / cam / "intrinsics.json"))
+            check_image_sizes([(str(root / "camera" / cam), *first_size[cam]), (str(root / "camera" / cam), int(f), (width, height))])
             mask = root / EXTRAS / "instance_masks" / cam / f"{f:02d}.png"
             images.append(
                 CameraImage(
@@ -224,10 +278,13 @@ def _image_size(path: Path) -> tuple[int, int]:
 def _load_sweep(root, f, lidar_times_raw, lidar_poses_raw, world_from_raw, time_origin, sensors) -> LidarSweep:
     path = root / "lidar" / f"{f:02d}.pkl.gz"
     df = read_pickle(path)
-    missing = [c for c in ("x", "y", "z", "i", "t", "d") if c not in df.columns]
-    if missing:
-        raise IDSplatError(f"{path}: lidar DataFrame lacks columns {missing}; expected x, y, z, i, t, d")
+    check_columns(df.columns, ("x", "y", "z", "i", "t", "d"), str(path), "lidar DataFrame")
     df = df[df["d"].isin(list(sensors))]
+    for column in ("x", "y", "z", "i", "t"):
+        try:
+            check_finite(df[column].to_numpy(np.float64), str(path), f"column {column}", int(f))
+        except (TypeError, ValueError) as err:  # a non-numeric column in a damaged file
+            raise IDSplatError(f"{path}: frame {f}: column {column} is not numeric ({err}); re-download or regenerate it") from None
     points = world_from_raw[:3, :3] @ df[["x", "y", "z"]].to_numpy(np.float64).T
     points = points.T + world_from_raw[:3, 3]
     t_raw = df["t"].to_numpy(np.float64)
@@ -290,9 +347,12 @@ def _load_tracks(root, frames, lidar_times_raw, world_from_raw, time_origin) -> 
             continue
         df = read_pickle(path)
         needed = ["uuid", "label", "yaw", "position.x", "position.y", "position.z", "dimensions.x", "dimensions.y", "dimensions.z"]
-        missing = [c for c in needed if c not in df.columns]
-        if missing:
-            raise IDSplatError(f"{path}: cuboid DataFrame lacks columns {missing}")
+        check_columns(df.columns, needed, str(path), "cuboid DataFrame")
+        for column in needed[2:]:
+            try:
+                check_finite(df[column].to_numpy(np.float64), str(path), f"column {column}", int(f))
+            except (TypeError, ValueError) as err:
+                raise IDSplatError(f"{path}: frame {f}: column {column} is not numeric ({err})") from None
         if "cuboids.sensor_id" in df.columns:
             df = df[df["cuboids.sensor_id"] != 1]  # PandarGT duplicates of boxes in the overlap zone
         df = df.assign(frame=int(f))

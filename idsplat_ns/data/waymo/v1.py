@@ -13,6 +13,7 @@ from typing import Iterator, Optional, Sequence
 import numpy as np
 
 from idsplat_ns.data.waymo import proto
+from idsplat_ns.data.waymo.checks import check_calibration, check_frame
 from idsplat_ns.data.waymo.range_image import decode_compressed_matrix
 from idsplat_ns.data.waymo.records import (
     CAMERA_NAMES,
@@ -172,15 +173,24 @@ def read_v1(
     ref, data = first
     frame = parse_frame(data, path, ref)
     calib = segment_calibration(frame, str(path))
+    check_calibration(calib, str(path), str(path))
     cam_names = resolve_names(cameras, list(calib.cameras), "camera", path)
     lidar_names = resolve_names(lidars, list(calib.lidars), "lidar", path)
 
+    def checked(rec: FrameRecord, previous: Optional[int]) -> FrameRecord:
+        check_frame(rec, previous, str(path), str(path), str(path))
+        return rec
+
     def frames() -> Iterator[FrameRecord]:
         nonlocal frame
-        yield frame_record(frame, ref.index, cam_names, lidar_names, str(path), second_return)
+        rec = checked(frame_record(frame, ref.index, cam_names, lidar_names, str(path), second_return), None)
+        previous = rec.timestamp_micros
+        yield rec
         frame = None  # release the parsed first frame
         for r, d in records:
-            yield frame_record(parse_frame(d, path, r), r.index, cam_names, lidar_names, str(path), second_return)
+            rec = checked(frame_record(parse_frame(d, path, r), r.index, cam_names, lidar_names, str(path), second_return), previous)
+            previous = rec.timestamp_micros
+            yield rec
 
     return calib, frames()
 

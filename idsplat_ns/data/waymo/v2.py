@@ -25,6 +25,8 @@ from idsplat_ns.data.waymo.records import (
     SegmentCalibration,
 )
 from idsplat_ns.data.waymo.v1 import resolve_names, sensor_rank
+from idsplat_ns.data.validation import check_timestamps
+from idsplat_ns.data.waymo.checks import check_calibration, check_frame
 from idsplat_ns.errors import IDSplatError
 
 SPLITS = ("training", "validation", "testing")
@@ -132,6 +134,8 @@ def read_v2(
     vp = _read(_file(base, "vehicle_pose", context_name, True), [TS, col("VehiclePoseComponent", "world_from_vehicle.transform")])
     order = np.argsort(vp[TS])
     all_ts = [int(vp[TS][i]) for i in order]
+    # Frames are keyed by timestamp below: a repeated one would silently merge two frames.
+    check_timestamps(all_ts, str(base / "vehicle_pose" / f"{context_name}.parquet"), "key.frame_timestamp_micros")
     if start >= len(all_ts):
         raise IDSplatError(f"{base}: context {context_name} has {len(all_ts)} frames, none at index {start}; lower the start frame")
     selected = all_ts[start:end]
@@ -167,6 +171,8 @@ def read_v2(
                 inclination_max=float(lc[col(L, "beam_inclination.max")][i]),
             )
     calib = SegmentCalibration(context_name=context_name, cameras=cam_calibs, lidars=lidar_calibs)
+    component = {name: str(base / name / f"{context_name}.parquet") for name in ("vehicle_pose", "camera_calibration", "lidar_calibration", "camera_image", "lidar")}
+    check_calibration(calib, component["camera_calibration"], component["lidar_calibration"])
     cam_names = resolve_names(cameras, list(cam_calibs), "camera", base / "camera_calibration" / f"{context_name}.parquet")
     lidar_names = resolve_names(lidars, list(lidar_calibs), "lidar", base / "lidar_calibration" / f"{context_name}.parquet")
     cam_numbers = {n for n, name in CAMERA_NAMES.items() if name in cam_names}
@@ -245,7 +251,11 @@ def read_v2(
             ))
 
     def frames() -> Iterator[FrameRecord]:
+        previous = None
         for ts in selected:
-            yield records.pop(ts)
+            rec = records.pop(ts)
+            check_frame(rec, previous, component["vehicle_pose"], component["camera_image"], component["lidar"])
+            previous = rec.timestamp_micros
+            yield rec
 
     return calib, frames(), base

@@ -1,0 +1,31 @@
+"""The training-run config of the IDSplat methods: nerfstudio's, validated before anything is written.
+
+``ns-train`` calls ``config.save_config()`` (which creates the run folder and its config.yml)
+before it reads any data, and that is the first thing it does with the parsed options. So this
+override is the earliest point where the project sees the final settings: it checks every numeric
+option's range (one line naming the option, :mod:`idsplat_ns.nerfstudio.settings_checks`) and
+registers the new run folder so that a run failing before its first checkpoint leaves nothing
+behind (:func:`idsplat_ns.errors.register_run_dir`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from nerfstudio.engine.trainer import TrainerConfig
+
+from idsplat_ns.errors import register_run_dir
+from idsplat_ns.nerfstudio.settings_checks import validate_settings
+
+
+@dataclass
+class IDSplatTrainerConfig(TrainerConfig):
+    """nerfstudio's TrainerConfig whose ``save_config`` validates the settings first."""
+
+    def save_config(self) -> None:
+        validate_settings(self)
+        base_dir = self.get_base_dir()
+        created = not base_dir.exists()  # an existing folder (a fixed --timestamp) is not ours to remove
+        super().save_config()
+        if created:
+            register_run_dir(base_dir, self.output_dir)
