@@ -19,6 +19,11 @@ T = TypeVar("T")
 class IDSplatError(Exception):
     """Expected bad input; ``str(err)`` is one line naming the file or option and what to do."""
 
+    def __init__(self, message: str) -> None:
+        # Messages quote library errors (pickle, arrow, protobuf) that may span lines: fold them,
+        # so the promise of one line holds whatever a damaged file makes a library say.
+        super().__init__(" ".join(str(message).split()))
+
 
 def run_cli(main: Callable[[], T]) -> T:
     """Run a command-line ``main``; an :class:`IDSplatError` ends in one line on stderr and exit 2."""

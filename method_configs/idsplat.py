@@ -75,7 +75,8 @@ def make_trainer_config(method_name: str, max_steps: int, resolution_schedule: t
         method_name=method_name,
         steps_per_eval_image=max(max_steps // 10, 100),
         steps_per_eval_batch=0,
-        steps_per_save=max_steps,
+        # A checkpoint every fifth of the run: a killed run resumes from it (idsplat_ns/nerfstudio/trainer.py).
+        steps_per_save=max(max_steps // 5, 100),
         steps_per_eval_all_images=10**9,  # held-out evaluation is ns-eval's job
         max_num_iterations=max_steps,
         mixed_precision=False,

@@ -27,6 +27,9 @@ from idsplat_ns.data.lidar import LidarSweep, rays_from_points
 from idsplat_ns.data.scene import Scene, recentring_transform
 from idsplat_ns.data.tracks import ObjectTrack
 from idsplat_ns.data.validation import (
+    MAX_LIDAR_RANGE_M,
+    MAX_SWEEP_TIME_OFFSET_S,
+    check_within,
     check_columns,
     check_finite,
     check_frame_counts,
@@ -290,6 +293,9 @@ def _load_sweep(root, f, lidar_times_raw, lidar_poses_raw, world_from_raw, time_
     t_raw = df["t"].to_numpy(np.float64)
     origins = _sensor_positions(t_raw, lidar_times_raw, lidar_poses_raw, world_from_raw)
     directions, ranges = rays_from_points(origins, points)
+    check_within(ranges, 0.0, MAX_LIDAR_RANGE_M, str(path), "range from the sensor (x, y, z)", int(f), " m")
+    check_within(t_raw - lidar_times_raw[f], -MAX_SWEEP_TIME_OFFSET_S, MAX_SWEEP_TIME_OFFSET_S, str(path),
+                 "column t (from the sweep's stamp)", int(f), " s")
     intensities = (df["i"].to_numpy(np.float64) / 255.0).clip(0, 1).astype(np.float32)
     sensor_ids = df["d"].to_numpy().astype(np.int16)
     returned = np.ones(len(points), bool)

@@ -164,3 +164,24 @@ def check_columns(present: Iterable[str], needed: Sequence[str], where: str, wha
     missing = [c for c in needed if c not in have]
     if missing:
         raise IDSplatError(f"{where}: {what} lacks columns {missing}; expected {', '.join(needed)}")
+
+
+MAX_LIDAR_RANGE_M = 10_000.0
+"""A return farther than this from its sensor is a damaged value, not a measurement (real lidars
+reach ~300 m); it would also overflow float32 geometry downstream."""
+MAX_SWEEP_TIME_OFFSET_S = 1.0
+"""A point time farther than this from its sweep's stamp is damaged (a sweep lasts ~0.1 s)."""
+
+
+def check_within(values: np.ndarray, low: float, high: float, where: str, field: str, frame: Optional[int] = None,
+                 unit: str = "") -> np.ndarray:
+    """Finite and inside ``[low, high]``: a finite but absurd value (1e30 m) is damage all the same."""
+    arr = check_finite(values, where, field, frame)
+    bad = (arr < low) | (arr > high)
+    if bad.any():
+        i = int(np.argmax(bad.reshape(-1)))
+        raise IDSplatError(
+            f"{_at(where, frame, field)}: {int(bad.sum())} value(s) outside [{low:g}, {high:g}]{unit} (entry {i}: "
+            f"{arr.reshape(-1)[i]:g}); the file is damaged: re-download or regenerate it"
+        )
+    return arr

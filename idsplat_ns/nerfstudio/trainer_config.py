@@ -10,7 +10,8 @@ behind (:func:`idsplat_ns.errors.register_run_dir`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Type
 
 from nerfstudio.engine.trainer import TrainerConfig
 
@@ -22,6 +23,8 @@ from idsplat_ns.nerfstudio.settings_checks import validate_settings
 class IDSplatTrainerConfig(TrainerConfig):
     """nerfstudio's TrainerConfig whose ``save_config`` validates the settings first."""
 
+    _target: Type = field(default_factory=lambda: _trainer_class())
+
     def save_config(self) -> None:
         validate_settings(self)
         base_dir = self.get_base_dir()
@@ -29,3 +32,9 @@ class IDSplatTrainerConfig(TrainerConfig):
         super().save_config()
         if created:
             register_run_dir(base_dir, self.output_dir)
+
+
+def _trainer_class() -> type:
+    from idsplat_ns.nerfstudio.trainer import IDSplatTrainer  # imports torch: only when a run starts
+
+    return IDSplatTrainer

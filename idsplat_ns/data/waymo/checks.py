@@ -12,9 +12,15 @@ from typing import Optional
 
 import numpy as np
 
-from idsplat_ns.data.validation import check_finite, check_intrinsics, check_pose
+from idsplat_ns.data.validation import MAX_LIDAR_RANGE_M, check_finite, check_intrinsics, check_pose, check_within
 from idsplat_ns.data.waymo.records import FrameRecord, SegmentCalibration
 from idsplat_ns.errors import IDSplatError
+
+
+MAX_BOX_SIZE_M = 50.0
+"""A labelled box larger than this along any axis is damaged (the longest road vehicles are ~25 m)."""
+MAX_SPEED_MPS = 150.0
+"""A labelled speed above this (540 km/h) is damaged."""
 
 
 def check_calibration(calib: SegmentCalibration, camera_file: str, lidar_file: str) -> None:
@@ -38,9 +44,11 @@ def check_frame(
     pose_file: str,
     camera_file: str,
     lidar_file: str,
+    label_file: Optional[str] = None,
 ) -> None:
     """One frame: vehicle and image poses rigid, times finite and after the previous frame's,
-    range images and pixel poses finite. Fixes slightly-off rotations in place."""
+    range images and pixel poses finite, box labels finite with a plausible size and place.
+    Fixes slightly-off rotations in place."""
     frame = rec.index
     if previous_micros is not None and rec.timestamp_micros <= previous_micros:
         kind = "duplicates" if rec.timestamp_micros == previous_micros else "is before"
@@ -59,3 +67,10 @@ def check_frame(
             check_finite(lid.return2[..., :2], lidar_file, f"lidar {lid.name} return 2", frame)
         if lid.pixel_pose is not None:
             check_finite(lid.pixel_pose, lidar_file, f"lidar {lid.name} pixel pose", frame)
+    for label in rec.labels:
+        field = f"box {label.id}"
+        check_within(label.center, -MAX_LIDAR_RANGE_M, MAX_LIDAR_RANGE_M, label_file or pose_file, f"{field} centre", frame, " m")
+        # Boxes are at most a long articulated truck; a zero size is an empty box.
+        check_within(label.size, 1e-3, MAX_BOX_SIZE_M, label_file or pose_file, f"{field} size", frame, " m")
+        check_finite(np.array([label.heading]), label_file or pose_file, f"{field} heading", frame)
+        check_within(label.speed, -MAX_SPEED_MPS, MAX_SPEED_MPS, label_file or pose_file, f"{field} speed", frame, " m/s")

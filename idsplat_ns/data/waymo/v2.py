@@ -61,8 +61,12 @@ def _file(base: Path, component: str, context_name: str, required: bool) -> Opti
     return None
 
 
-def _read(path: Path, columns: list[str], keep=None) -> dict[str, list]:
-    """Columns as Python lists, streaming row batches and keeping rows where ``keep(batch)`` [n] is true."""
+def _read(path: Path, columns: list[str], keep=None, optional: tuple[str, ...] = ()) -> dict[str, list]:
+    """Columns as Python lists, streaming row batches and keeping rows where ``keep(batch)`` [n] is true.
+
+    A null in a column not named in ``optional`` is damage, named by file, column and row, so that
+    no ``None`` reaches the conversions below.
+    """
     import pyarrow as pa
     import pyarrow.parquet as pq
 
@@ -72,16 +76,32 @@ def _read(path: Path, columns: list[str], keep=None) -> dict[str, list]:
         if missing:
             raise IDSplatError(f"{path}: no column {missing[0]!r}; is this a Waymo v2 file of that component?")
         out: dict[str, list] = {c: [] for c in columns}
+        rows = 0
         for batch in pf.iter_batches(batch_size=_BATCH_ROWS if keep is not None else 65536, columns=columns):
             if keep is not None:
                 batch = batch.filter(pa.array(keep(batch)))
             for c in columns:
-                out[c].extend(_column_values(batch.column(c)))
+                arr = batch.column(c)
+                if arr.null_count and c not in optional:
+                    row = rows + int(np.argmax(np.asarray(arr.is_null())))
+                    raise IDSplatError(f"{path}: column {c!r} is empty (null) in row {row}; the file is damaged: re-download it")
+                out[c].extend(_column_values(arr))
+            rows += batch.num_rows
         return out
     except IDSplatError:
         raise
-    except (pa.ArrowException, OSError) as err:  # ArrowInvalid for non-parquet bytes
+    # ArrowInvalid for non-parquet bytes; a damaged footer or schema can also fail to decode as text.
+    except (pa.ArrowException, OSError, UnicodeDecodeError, EOFError) as err:
         raise IDSplatError(f"{path}: not a readable parquet file ({type(err).__name__}: {err}); re-download it") from None
+
+
+def _range_image(values, shape, what: str) -> np.ndarray:
+    """A flat range image (or pixel-pose image) reshaped to its stored [H, W, C] shape, checked first."""
+    values = np.asarray(values, np.float32)
+    shape = [] if shape is None else [int(v) for v in np.asarray(shape).reshape(-1)]
+    if len(shape) != 3 or min(shape) <= 0 or int(np.prod(shape)) != values.size:
+        raise IDSplatError(f"{what}: shape {shape} does not fit {values.size} values; the file is damaged: re-download it")
+    return values.reshape(shape)
 
 
 def _column_values(arr) -> list:
@@ -160,7 +180,8 @@ def read_v2(
     lidar_calibs = {}
     lc_path = _file(base, "lidar_calibration", context_name, lidars is not None and len(lidars) > 0)
     if lc_path is not None:
-        lc = _read(lc_path, [LASER] + [col(L, f) for f in ("extrinsic.transform", "beam_inclination.min", "beam_inclination.max", "beam_inclination.values")])
+        lc = _read(lc_path, [LASER] + [col(L, f) for f in ("extrinsic.transform", "beam_inclination.min", "beam_inclination.max", "beam_inclination.values")],
+                   optional=(col(L, "beam_inclination.values"),))
         for i, number in enumerate(lc[LASER]):
             name = LASER_NAMES.get(int(number), f"LASER_{int(number)}")
             values = lc[col(L, "beam_inclination.values")][i]
@@ -211,7 +232,8 @@ def read_v2(
         lcols = [TS, LASER, col(R, "range_image_return1.values"), col(R, "range_image_return1.shape")]
         if second_return:
             lcols += [col(R, "range_image_return2.values"), col(R, "range_image_return2.shape")]
-        li = _read(_file(base, "lidar", context_name, True), lcols, keep=lambda b: _in(b, TS, want) & _in(b, LASER, laser_numbers))
+        li = _read(_file(base, "lidar", context_name, True), lcols, keep=lambda b: _in(b, TS, want) & _in(b, LASER, laser_numbers),
+                   optional=(col(R, "range_image_return2.values"), col(R, "range_image_return2.shape")))
         P = "LiDARPoseComponent"
         lp_path = _file(base, "lidar_pose", context_name, False)
         pix = {}
@@ -219,13 +241,15 @@ def read_v2(
             lp = _read(lp_path, [TS, LASER, col(P, "range_image_return1.values"), col(P, "range_image_return1.shape")],
                        keep=lambda b: _in(b, TS, want) & _in(b, LASER, laser_numbers))
             for i, ts in enumerate(lp[TS]):
-                pix[(int(ts), int(lp[LASER][i]))] = np.asarray(lp[col(P, "range_image_return1.values")][i], np.float32).reshape(lp[col(P, "range_image_return1.shape")][i])
+                pix[(int(ts), int(lp[LASER][i]))] = _range_image(lp[col(P, "range_image_return1.values")][i], lp[col(P, "range_image_return1.shape")][i],
+                                                                 f"{lp_path}: row {i}: pixel pose")
         for i, ts in enumerate(li[TS]):
             number = int(li[LASER][i])
-            r1 = np.asarray(li[col(R, "range_image_return1.values")][i], np.float32).reshape(li[col(R, "range_image_return1.shape")][i])
+            where = f"{component['lidar']}: frame {index_of[int(ts)]}: lidar {LASER_NAMES.get(number, number)}"
+            r1 = _range_image(li[col(R, "range_image_return1.values")][i], li[col(R, "range_image_return1.shape")][i], f"{where} return 1")
             r2 = None
             if second_return and li[col(R, "range_image_return2.values")][i] is not None and len(li[col(R, "range_image_return2.values")][i]):
-                r2 = np.asarray(li[col(R, "range_image_return2.values")][i], np.float32).reshape(li[col(R, "range_image_return2.shape")][i])
+                r2 = _range_image(li[col(R, "range_image_return2.values")][i], li[col(R, "range_image_return2.shape")][i], f"{where} return 2")
             records[int(ts)].lidars.append(LidarFrame(name=LASER_NAMES[number], return1=r1, return2=r2, pixel_pose=pix.pop((int(ts), number), None)))
         del li
         for rec in records.values():
@@ -238,7 +262,8 @@ def read_v2(
         bcols = [TS, "key.laser_object_id"] + [col(B, f"box.center.{a}") for a in "xyz"] + [col(B, f"box.size.{a}") for a in "xyz"] + \
                 [col(B, "box.heading"), col(B, "type"), col(B, "num_lidar_points_in_box"), col(B, "num_top_lidar_points_in_box")] + \
                 [col(B, f"speed.{a}") for a in "xyz"]
-        lb = _read(lb_path, bcols, keep=lambda b: _in(b, TS, want))
+        lb = _read(lb_path, bcols, keep=lambda b: _in(b, TS, want),
+                   optional=tuple(col(B, f"speed.{a}") for a in "xyz") + (col(B, "num_top_lidar_points_in_box"),))
         for i, ts in enumerate(lb[TS]):
             records[int(ts)].labels.append(BoxLabel(
                 id=lb["key.laser_object_id"][i], type=int(lb[col(B, "type")][i]),
@@ -254,7 +279,8 @@ def read_v2(
         previous = None
         for ts in selected:
             rec = records.pop(ts)
-            check_frame(rec, previous, component["vehicle_pose"], component["camera_image"], component["lidar"])
+            check_frame(rec, previous, component["vehicle_pose"], component["camera_image"], component["lidar"],
+                        str(lb_path) if lb_path else None)
             previous = rec.timestamp_micros
             yield rec
 

@@ -1,0 +1,113 @@
+"""nerfstudio's Trainer with runs that survive a kill: atomic checkpoints and resume at the right step.
+
+Three changes to nerfstudio's behaviour, each needed for ``kill -9`` then the same command again:
+
+- A checkpoint is written under a temporary name and renamed, so a kill during ``torch.save``
+  never leaves a truncated ``step-*.ckpt`` that the resume (or ``ns-eval``) would then load.
+- A run folder that already holds checkpoints resumes from the latest one (``--load-config
+  RUN/config.yml`` re-runs the same folder; so does a fixed ``--timestamp``), and
+  ``--max-num-iterations`` stays the run's total: a run killed at step 700 of 1500 trains 800
+  more, not 1500 more as nerfstudio would.
+- After loading, the optimizers are rebuilt on the model's current tensors: loading a checkpoint
+  reallocates the Gaussians (MCMC grew them) and may rebuild the trajectories, and nerfstudio's
+  optimizers, made before the load, would otherwise keep stepping the discarded tensors.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Optional
+
+import torch
+from nerfstudio.engine.trainer import Trainer
+from nerfstudio.utils.rich_utils import CONSOLE
+
+from idsplat_ns.atomic import TMP_MARK, atomic_path
+
+CHECKPOINT_GLOB = "step-*.ckpt"
+
+
+def checkpoint_step(path: Path) -> int:
+    """The step in a checkpoint's name ``step-000001234.ckpt``."""
+    return int(path.name[len("step-"):-len(".ckpt")])
+
+
+def latest_checkpoint(folder: Path) -> Optional[Path]:
+    """The checkpoint with the highest step in ``folder`` (None when there is none)."""
+    found = [p for p in Path(folder).glob(CHECKPOINT_GLOB) if TMP_MARK not in p.name] if Path(folder).is_dir() else []
+    return max(found, key=checkpoint_step) if found else None
+
+
+def remove_partial_checkpoints(folder: Path) -> None:
+    """Delete temporaries a killed save left behind (nerfstudio's own loaders would misread them)."""
+    if Path(folder).is_dir():
+        for leftover in Path(folder).glob(f"*{TMP_MARK}*"):
+            leftover.unlink(missing_ok=True)
+
+
+class IDSplatTrainer(Trainer):
+    """nerfstudio's Trainer with atomic checkpoints and resume (see the module docstring)."""
+
+    def _checkpoint_to_resume(self) -> Optional[Path]:
+        if self.config.load_checkpoint is not None:
+            return Path(self.config.load_checkpoint)
+        if self.config.load_dir is not None:
+            folder = Path(self.config.load_dir)
+            if self.config.load_step is not None:
+                return folder / f"step-{self.config.load_step:09d}.ckpt"
+            return latest_checkpoint(folder)
+        return latest_checkpoint(self.checkpoint_dir)
+
+    def _load_checkpoint(self) -> None:
+        remove_partial_checkpoints(self.checkpoint_dir)
+        path = self._checkpoint_to_resume()
+        if path is None:
+            CONSOLE.print("No checkpoint to resume from: training from step 0.")
+            return
+        from idsplat_ns.errors import IDSplatError
+
+        if not path.is_file():
+            raise IDSplatError(f"{path}: no such checkpoint; check --load-dir/--load-step/--load-checkpoint")
+        try:
+            state = torch.load(path, map_location="cpu", weights_only=False)
+        except Exception as err:  # noqa: BLE001 - any unpickling failure means the same: a bad file
+            raise IDSplatError(f"{path}: unreadable checkpoint ({type(err).__name__}); delete it to resume from an earlier one") from None
+        step = int(state["step"])
+        self._start_step = step + 1
+        self.step = step  # a run with nothing left to train saves this step again, not step 0
+        self.pipeline.load_pipeline(state["pipeline"], step)
+        self.optimizers = self.setup_optimizers()  # on the tensors the load allocated (module docstring)
+        self.optimizers.load_optimizers(state["optimizers"])
+        if "schedulers" in state and self.config.load_scheduler:
+            self.optimizers.load_schedulers(state["schedulers"])
+        self.grad_scaler.load_state_dict(state["scalers"])
+        total = self.config.max_num_iterations
+        self.config.max_num_iterations = max(total - self._start_step, 0)
+        CONSOLE.print(
+            f"Resuming from {path} (step {step}): {self.config.max_num_iterations} of {total} steps left. "
+            "Delete the run folder to start over."
+        )
+
+    def save_checkpoint(self, step: int) -> None:
+        """nerfstudio's checkpoint, written under a temporary name and renamed."""
+        self.checkpoint_dir.mkdir(parents=True, exist_ok=True)
+        path = self.checkpoint_dir / f"step-{step:09d}.ckpt"
+        pipeline = self.pipeline.module if hasattr(self.pipeline, "module") else self.pipeline
+        with atomic_path(path) as tmp:
+            torch.save(
+                {
+                    "step": step,
+                    "pipeline": pipeline.state_dict(),
+                    "optimizers": {k: v.state_dict() for k, v in self.optimizers.optimizers.items()},
+                    "schedulers": {k: v.state_dict() for k, v in self.optimizers.schedulers.items()},
+                    "scalers": self.grad_scaler.state_dict(),
+                },
+                tmp,
+            )
+            with open(tmp, "rb") as fh:
+                os.fsync(fh.fileno())  # on disk before the rename makes it the checkpoint
+        if self.config.save_only_latest_checkpoint:
+            for old in self.checkpoint_dir.glob(CHECKPOINT_GLOB):
+                if old != path:
+                    old.unlink(missing_ok=True)
