@@ -27,7 +27,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from idsplat_ns.instances.lifting import InstanceObservation, LiftedInstances
-from idsplat_ns.instances.tracks import InstanceTracks
+from idsplat_ns.instances.tracks import InstanceTrack, InstanceTracks
 
 
 @dataclass(frozen=True)
@@ -124,6 +124,19 @@ def convert_static_instances(
                 moving = False
                 stationary_ids.append(inst.instance_id)
         (dynamic if moving else static).append(inst)
-    meta = {**tracks.metadata, "static_min_displacement": config.min_displacement,
-            "static_by_world_overlap": stationary_ids}
+    # Extend, not replace: the model runs the displacement rule again on tracks already converted.
+    overlap = list(tracks.metadata.get("static_by_world_overlap", [])) + stationary_ids
+    meta = {**tracks.metadata, "static_min_displacement": config.min_displacement, "static_by_world_overlap": overlap}
     return replace(tracks, instances=dynamic, static_instances=static, metadata=meta)
+
+
+def static_reason(inst: InstanceTrack, config: StaticConversionConfig, metadata: Optional[dict] = None) -> str:
+    """Why ``inst`` is static under ``config`` (``metadata``: its tracks', for the world-overlap test)."""
+    if inst.instance_id in (metadata or {}).get("static_by_world_overlap", []):
+        return "its points agree across frames (world overlap): it does not move"
+    if inst.num_valid < config.min_valid_frames:
+        return f"seen in {inst.num_valid} frame(s): no motion to model"
+    moved = inst.displacement()
+    if moved < config.min_displacement:
+        return f"moved {moved:.2f} m, under {config.min_displacement:g} m"
+    return "static in its tracks"

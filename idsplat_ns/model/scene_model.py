@@ -8,12 +8,15 @@ trajectory does not span the render time is absent (its Gaussians are not render
 Optional parts: the lidar head (2-layer MLP decoding composited features into intensity and
 ray-drop logit; only for scenes with lidar) and per-camera learnable time offsets (seconds, added
 to each camera's render time; only when there are instances whose poses depend on the time).
+Sensor embeddings and time offsets exist only for the cameras that have training images
+(``embedded_sensors``); another camera renders with a zero embedding and no offset, which is what
+a zero-initialised row that never receives a gradient would give.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Optional
+from typing import Optional, Sequence
 
 import torch
 from torch import Tensor, nn
@@ -46,20 +49,29 @@ class SceneModel(nn.Module):
 
     def __init__(self, gaussians: GaussianSet, num_sensors: int, decoder: DecoderConfig,
                  trajectories: Optional[nn.Module] = None, background=(0.5, 0.5, 0.5), *,
-                 lidar_head_hidden: Optional[int] = None, camera_time_offsets: bool = False) -> None:
+                 lidar_head_hidden: Optional[int] = None, camera_time_offsets: bool = False,
+                 embedded_sensors: Optional[Sequence[int]] = None) -> None:
         """``lidar_head_hidden``: hidden width of the lidar head (None: no lidar head, camera-only
-        scene). ``camera_time_offsets``: learn a time offset per camera (only with trajectories)."""
+        scene). ``camera_time_offsets``: learn a time offset per camera (only with trajectories).
+        ``embedded_sensors``: the sensor indices (of ``num_sensors``) that get an embedding and a
+        time offset, in row order (None: all)."""
         super().__init__()
         self.gaussians = gaussians
         self.trajectories = trajectories
-        self.sensor_embedding = nn.Embedding(num_sensors, decoder.sensor_embedding_dim)
+        embedded = list(range(num_sensors)) if embedded_sensors is None else sorted(set(int(s) for s in embedded_sensors))
+        if any(not 0 <= s < num_sensors for s in embedded):
+            raise ValueError(f"SceneModel: embedded_sensors {embedded} outside 0..{num_sensors - 1}")
+        # Sensor index -> row of the embedding / offset tables (-1: none). Not in the state dict:
+        # the model is rebuilt from the same data and split before a checkpoint is loaded.
+        self.sensor_rows = [embedded.index(s) if s in embedded else -1 for s in range(num_sensors)]
+        self.sensor_embedding = nn.Embedding(len(embedded), decoder.sensor_embedding_dim)
         nn.init.zeros_(self.sensor_embedding.weight)
         self.rgb_decoder = RGBDecoderCNN(decoder.feature_dim, decoder.sensor_embedding_dim, decoder.hidden, decoder.kernel, decoder.blocks)
         self.background = nn.Parameter(torch.logit(torch.tensor(background, dtype=torch.float32).clamp(0.01, 0.99)))
         self.lidar_head = None if lidar_head_hidden is None else LidarHead(decoder.feature_dim, lidar_head_hidden)
         # A time offset only moves instances: without trajectories it would get no gradient.
         self.camera_time_offset = (
-            nn.Parameter(torch.zeros(num_sensors)) if camera_time_offsets and trajectories is not None else None
+            nn.Parameter(torch.zeros(len(embedded))) if camera_time_offsets and trajectories is not None else None
         )
 
     @property
@@ -69,10 +81,17 @@ class SceneModel(nn.Module):
     def camera_time(self, time: Optional[float], sensor: int) -> Optional[float | Tensor]:
         """The render time of camera ``sensor``: ``time`` plus its learnable offset (a float64
         scalar tensor that carries the offset's gradient) when offsets are learnt."""
-        if time is None or self.camera_time_offset is None:
+        row = self.sensor_rows[sensor] if 0 <= sensor < len(self.sensor_rows) else -1
+        if time is None or self.camera_time_offset is None or row < 0:
             return time
         return torch.tensor(time, dtype=torch.float64, device=self.camera_time_offset.device) + \
-            self.camera_time_offset[sensor].double()
+            self.camera_time_offset[row].double()
+
+    def sensor_embedding_of(self, sensor: int) -> Tensor:  # -> [1, E]
+        """The embedding of camera ``sensor``; zeros for a camera without one (no training image)."""
+        row = self.sensor_rows[sensor] if 0 <= sensor < len(self.sensor_rows) else -1
+        weight = self.sensor_embedding.weight
+        return weight[row : row + 1] if row >= 0 else weight.new_zeros(1, weight.shape[1])
 
     def posed_gaussians(self, time: Optional[float | Tensor]) -> dict[str, Tensor]:
         """Activated Gaussians in the world at ``time`` (seconds); absent instances removed."""
@@ -110,7 +129,7 @@ class SceneModel(nn.Module):
         alpha = out.alpha[0]
         background = torch.sigmoid(self.background)
         base = out.features[0, ..., :3] + (1 - alpha) * background
-        emb = self.sensor_embedding.weight[sensor : sensor + 1]
+        emb = self.sensor_embedding_of(sensor)
         rgb = self.rgb_decoder(base[None], out.features[:, ..., 3:], emb)[0]
         return {
             "rgb": rgb,

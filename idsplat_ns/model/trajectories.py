@@ -120,8 +120,11 @@ def so3_log(R: Tensor) -> Tensor:  # R: [..., 3, 3] -> [..., 3]
     n2 = (v * v).sum(-1)
     small = n2 < _SMALL_ANGLE**2
     n = torch.sqrt(torch.where(small, torch.ones_like(n2), n2))
+    # Double-where: at exactly pi, w = 0 and the unused series branch's 1/w would make the
+    # gradient NaN (0 * inf); near 0, where the series is used, w is about 1.
+    w_safe = torch.where(small, w, torch.ones_like(w))
     # angle = 2 atan2(|v|, w); factor = angle / |v|, series 2/w (1 - |v|^2 / (3 w^2)) near 0.
-    factor = torch.where(small, 2.0 / w * (1.0 - n2 / (3.0 * w * w)), 2.0 * torch.atan2(n, w) / n)
+    factor = torch.where(small, 2.0 / w_safe * (1.0 - n2 / (3.0 * w_safe * w_safe)), 2.0 * torch.atan2(n, w) / n)
     return factor[..., None] * v
 
 

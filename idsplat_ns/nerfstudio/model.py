@@ -20,17 +20,20 @@ from nerfstudio.cameras.cameras import Cameras
 from nerfstudio.engine.callbacks import TrainingCallback, TrainingCallbackAttributes, TrainingCallbackLocation
 from nerfstudio.models.base_model import Model, ModelConfig
 from nerfstudio.utils import colormaps
+from nerfstudio.utils.misc import step_check
 from rich.console import Console
 from torch import Tensor, nn
 
 from idsplat_ns.data.images import load_rgb
 from idsplat_ns.eval.image_metrics import psnr, ssim
+from idsplat_ns.instances.static_conversion import StaticConversionConfig, convert_static_instances
 from idsplat_ns.model.gaussians import GaussianSet
 from idsplat_ns.model.initialisation import InitConfig
 from idsplat_ns.model.lidar_supervision import LidarConfig, LidarSupervisor, SweepRender, render_sweep, sweeps_of_frames
 from idsplat_ns.model.mcmc import MCMCConfig, MCMCDensifier, mcmc_regularisation
 from idsplat_ns.model.path_time import PathClock
 from idsplat_ns.model.scene_model import DecoderConfig, SceneModel
+from idsplat_ns.model.scene_summary import SceneSummary, summarise, summary_lines, write_summary
 from idsplat_ns.model.schedules import resolution_downscale
 from idsplat_ns.nerfstudio.dataparser import OPENCV_TO_OPENGL
 from idsplat_ns.nerfstudio.dataset import frames_of_split
@@ -38,6 +41,16 @@ from idsplat_ns.nerfstudio.render_guard import check_render_tools
 
 CONSOLE = Console()
 GAUSSIAN_GROUPS = GaussianSet.PARAM_NAMES
+
+
+def static_threshold(option: Optional[float], tracks) -> float:
+    """Metres below which an instance is static: the option, else the preprocessing's (so the
+    model never undoes a smaller threshold the user gave there), else the paper's 1 m."""
+    if option is not None:
+        return float(option)
+    if tracks is not None and "static_min_displacement" in tracks.metadata:
+        return float(tracks.metadata["static_min_displacement"])
+    return StaticConversionConfig().min_displacement
 
 
 @dataclass
@@ -79,6 +92,11 @@ class IDSplatModelConfig(ModelConfig):
     """Lidar supervision (rays per step, cadence, loss weights); used only when the scene has lidar."""
     learn_camera_time_offsets: bool = True
     """Learn a time offset per camera (seconds, zero-initialised; only when instances exist)."""
+    static_min_displacement: Optional[float] = None
+    """Metres: an instance whose positions span less than this (parked, stopped all sequence) or
+    that is seen in one frame is modelled as static Gaussians without a trajectory, whatever the
+    instance mode. None: the threshold the instance preprocessing used when the tracks carry one
+    (``--pipeline.datamanager.preprocess.static.min-displacement``), else 1 m (the paper's)."""
 
 
 class IDSplatModel(Model):
@@ -93,6 +111,11 @@ class IDSplatModel(Model):
         scene = metadata["scene"]
         self.camera_names: List[str] = list(metadata["camera_names"])
         tracks = metadata.get("instance_tracks")
+        self.static_config = StaticConversionConfig(min_displacement=static_threshold(self.config.static_min_displacement, tracks))
+        if tracks is not None:
+            # Only what moves gets a trajectory: oracle flags and imported tracks are not filtered upstream.
+            tracks = convert_static_instances(tracks, self.static_config)
+        self.instance_tracks = tracks
         trajectories = None
         if tracks is not None and len(tracks.instances) > 0:
             from idsplat_ns.model.trajectories import InstanceTrajectories
@@ -106,10 +129,14 @@ class IDSplatModel(Model):
             gaussians = GaussianSet(0, self.config.decoder.feature_dim)
         train_frames = frames_of_split(metadata)
         lidar_sweeps = sweeps_of_frames(scene, train_frames) if self.config.lidar.enabled else []
+        self.num_lidar_sweeps = len(lidar_sweeps)
+        # A camera without training images would keep an untrained (zero) embedding: it gets none.
+        self.used_cameras = {im.camera for im in metadata["split_images"]}
         self.scene_model = SceneModel(
             gaussians, len(self.camera_names), self.config.decoder, trajectories, self.config.background_color,
             lidar_head_hidden=self.config.lidar.head_hidden if lidar_sweeps else None,
             camera_time_offsets=self.config.learn_camera_time_offsets,
+            embedded_sensors=[i for i, name in enumerate(self.camera_names) if name in self.used_cameras],
         )
         self.lidar = LidarSupervisor(lidar_sweeps, self.config.lidar, seed=self.config.init_seed) if lidar_sweeps else None
         cap = min(self.config.mcmc.cap_max, int(self.config.cap_factor * max(gaussians.num, 1)))
@@ -127,6 +154,20 @@ class IDSplatModel(Model):
         self._noted_missing_time = False
         self.step = 0
         self._lpips = None
+        self.instance_mode = str(metadata.get("instance_mode", "static" if tracks is None else "given"))
+        if metadata.get("test_mode", "val") == "val":
+            CONSOLE.print("[bold]IDSplat models:[/bold]\n  " + "\n  ".join(summary_lines(self.scene_summary())), soft_wrap=True)
+
+    def scene_summary(self, step: Optional[int] = None) -> SceneSummary:
+        """What is modelled and why (cameras, lidar, instances, Gaussians and parameters per group)."""
+        sm = self.scene_model
+        return summarise(
+            camera_names=self.camera_names, used_cameras=self.used_cameras, lidar_sweeps=self.num_lidar_sweeps,
+            lidar_head=sm.lidar_head, instance_mode=self.instance_mode, tracks=self.instance_tracks,
+            trajectories=sm.trajectories, static_config=self.static_config, instance_ids=self.gaussians.instance_ids,
+            groups=self.get_param_groups(), embedding=sm.sensor_embedding, camera_time_offset=sm.camera_time_offset,
+            step=step,
+        )
 
     def _initial_gaussians(self, scene, train_images, tracks) -> GaussianSet:
         init_cfg = InitConfig(
@@ -173,6 +214,21 @@ class IDSplatModel(Model):
                 self.densifier.step(step, self.gaussians, {k: optimizers[k] for k in GAUSSIAN_GROUPS}, lr_means)
 
             callbacks.append(TrainingCallback([TrainingCallbackLocation.AFTER_TRAIN_ITERATION], densify))
+        trainer = attrs.trainer
+        if trainer is not None and getattr(trainer, "base_dir", None) is not None:
+            # The run folder, beside nerfstudio_models/ (not in it: nerfstudio's loaders read every
+            # name there as step-N.ckpt, so any other file breaks ns-eval, ns-viewer and resuming).
+            folder = Path(trainer.base_dir)
+            write_summary(self.scene_summary(), folder)  # before training: what is modelled
+            last = getattr(trainer, "_start_step", 0) + trainer.config.max_num_iterations - 1
+
+            def rewrite_summary(step: int) -> None:
+                # The trainer saves at these steps: the counts then match the checkpoint beside them.
+                if step_check(step, trainer.config.steps_per_save) or step == last:
+                    write_summary(self.scene_summary(step), folder)
+
+            # After densify (registered first): MCMC changes the Gaussian counts.
+            callbacks.append(TrainingCallback([TrainingCallbackLocation.AFTER_TRAIN_ITERATION], rewrite_summary))
         return callbacks
 
     def get_param_groups(self) -> Dict[str, List[nn.Parameter]]:
