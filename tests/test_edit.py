@@ -14,6 +14,7 @@ pytest.importorskip("nerfstudio")
 
 from _tiny_run import loaded_pipeline, tiny_run  # noqa: E402
 
+from idsplat_ns.data.tracks import label_group  # noqa: E402
 from idsplat_ns.model.editing import EditError, SceneTensors  # noqa: E402
 
 PREFIX = "_model.scene_model."
@@ -219,14 +220,16 @@ def test_cli_writes_a_run_that_loads_like_any_run(run_config, pipeline, tmp_path
     assert ckpt.parent == out / "nerfstudio_models"
     assert iid not in edited_pipeline.model.scene_model.trajectories.instance_ids.tolist()
     assert not bool((ids_of(edited_pipeline, i) == iid).any())
-    # --points adds each instance's lidar points from the run's (oracle) decomposition.
+    # --points adds each instance's lidar points, label and class from the run's (oracle) decomposition.
     main(["--load-config", str(run_config), "--list", "--points"])
     rows = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("│")]
     tracks = pipeline.datamanager.train_dataset.metadata["instance_tracks"].instances
-    expected = {t.instance_id: len(t.canonical_points) for t in tracks}
+    expected = {t.instance_id: (len(t.canonical_points), t.label, label_group(t.label)) for t in tracks}
     for row in rows:
         cells = [c.strip() for c in row.strip("│").split("│")]
-        assert int(cells[-2]) == expected[int(cells[0])]
+        n, label, cls = expected[int(cells[0])]
+        assert (int(cells[-3]), cells[-2], cells[-1]) == (n, label, cls)
+        assert cells[1] in ("vehicle", "pedestrian", "cyclist")  # the guess from size and speed
     assert len(rows) == len(expected) > 0
     # Unknown IDs end in one line naming the option's source and the known IDs.
     with pytest.raises(SystemExit) as exit_info:

@@ -1,4 +1,4 @@
-"""Ground-truth dynamic-region masks (for DPSNR): pixels of moving objects in an image.
+"""Ground-truth dynamic-region masks (for DPSNR, per class): pixels of moving objects in an image.
 
 Where the dataset has instance masks (the synthetic street), they are used directly. Otherwise the
 moving objects' 3D boxes are projected and their silhouettes (convex hull of the projected
@@ -14,7 +14,13 @@ import numpy as np
 from idsplat_ns.data.camera import CameraImage
 from idsplat_ns.data.images import load_instance_mask
 from idsplat_ns.data.scene import Scene
-from idsplat_ns.data.tracks import box_corners, label_group
+from idsplat_ns.data.tracks import ROAD_USER_CLASSES, box_corners, label_group
+
+MASK_KEYS: dict[str, str] = {
+    "vehicle": "dynamic_mask", "pedestrian": "dynamic_mask_pedestrian", "cyclist": "dynamic_mask_cyclist"
+}
+"""Batch key of each class's dynamic mask; the model reports ``dpsnr`` + the key's suffix (the
+paper's DPSNR over moving vehicles is ``dpsnr``)."""
 
 
 def _at_scale(image: CameraImage, intr) -> CameraImage:
@@ -56,6 +62,21 @@ def dynamic_mask(
         if poly is not None and len(poly) >= 3:
             cv2.fillConvexPoly(mask, poly, 1)
     return mask.astype(bool)
+
+
+def moving_classes(scene: Scene) -> list[str]:
+    """The road-user classes with moving annotated objects in the scene (tracks, or the classes
+    file of the dataset's own instance masks), in :data:`ROAD_USER_CLASSES` order."""
+    groups = {t.group for t in scene.tracks if t.moving}
+    groups |= {label_group(v.get("label", "")) for v in (scene.metadata.get("gt_instances") or {}).values() if v.get("moving")}
+    return [g for g in ROAD_USER_CLASSES if g in groups]
+
+
+def class_dynamic_masks(scene: Scene, image: CameraImage, scale: float = 1.0) -> dict[str, np.ndarray]:
+    """``{MASK_KEYS[class]: [H, W] bool}`` for each class with moving objects in the scene (an
+    image where none is in view gets an empty mask; a class the scene lacks gets no key, so its
+    DPSNR is absent, not zero)."""
+    return {MASK_KEYS[g]: dynamic_mask(scene, image, scale, groups=(g,)) for g in moving_classes(scene)}
 
 
 _EDGES = [(a, b) for a in range(8) for b in range(a + 1, 8) if bin(a ^ b).count("1") == 1]  # 12 box edges

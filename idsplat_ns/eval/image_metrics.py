@@ -1,4 +1,4 @@
-"""Image metrics: PSNR, SSIM and DPSNR (PSNR inside dynamic-object masks).
+"""Image metrics: PSNR, SSIM and DPSNR (PSNR inside dynamic-object masks, per class).
 
 SSIM is the standard Wang et al. formulation with an 11x11 Gaussian window (sigma 1.5) and
 reflection padding, averaged over the whole image: the convention of torchmetrics, which
@@ -63,3 +63,15 @@ def psnr(pred: Tensor, gt: Tensor, mask: Optional[Tensor] = None) -> Tensor:
         m = m.expand_as(err)
         mse = (err * m).sum() / m.sum().clamp(min=1)
     return -10 * torch.log10(mse.clamp(min=1e-10))
+
+
+def dynamic_psnrs(pred: Tensor, gt: Tensor, masks: dict[str, Tensor]) -> dict[str, float]:
+    """DPSNR of each non-empty dynamic mask: ``dynamic_mask<suffix>`` [H, W] or [H, W, 1] bool gives
+    ``dpsnr<suffix>`` (``dpsnr`` moving vehicles, ``dpsnr_pedestrian``, ``dpsnr_cyclist``); keys
+    not starting with ``dynamic_mask`` are ignored. pred, gt: [H, W, C] in [0, 1]."""
+    out = {}
+    for key, mask in masks.items():
+        if key.startswith("dynamic_mask") and bool(mask.any()):
+            m = mask.to(pred.device)
+            out["dpsnr" + key[len("dynamic_mask"):]] = float(psnr(pred, gt, m[..., 0] if m.dim() == 3 else m))
+    return out

@@ -22,6 +22,11 @@ _LAYERS = {
     "alex": ((2, 5, 8, 10, 12), (64, 192, 384, 256, 256)),
     "vgg": ((4, 9, 16, 23, 30), (64, 128, 256, 512, 512)),
 }
+LPIPS_NOTE = (
+    "LPIPS not computed: no backbone weights given (nothing is downloaded); pass "
+    "--pipeline.model.lpips-backbone <torchvision alexnet or vgg16 .pth file>"
+)
+"""The line ns-eval's JSON and report carry in place of LPIPS when no backbone file is given."""
 _SHIFT = (-0.030, -0.088, -0.188)
 _SCALE = (0.458, 0.448, 0.450)
 

@@ -17,7 +17,7 @@ from idsplat_ns.errors import IDSplatError
 
 
 def plot_per_image(per_image: Sequence[dict], path: str | os.PathLike, title: str = "") -> Path:
-    """Write PSNR (and DPSNR where present) per image index from ``[{metric: value}]``."""
+    """Write PSNR (and DPSNR of each class where present) per image index from ``[{metric: value}]``."""
     if not per_image:
         raise IDSplatError(f"plot_per_image: no image metrics to plot into {path}")
     path = Path(path)
@@ -27,9 +27,11 @@ def plot_per_image(per_image: Sequence[dict], path: str | os.PathLike, title: st
     ax = fig.add_subplot(1, 1, 1)
     psnr = np.array([m.get("psnr", np.nan) for m in per_image], dtype=np.float64)
     ax.plot(idx, psnr, "o-", ms=3, lw=1.0, color="C0", label=f"PSNR (mean {np.nanmean(psnr):.2f})")
-    dpsnr = np.array([m.get("dpsnr", np.nan) for m in per_image], dtype=np.float64)
-    if np.isfinite(dpsnr).any():
-        ax.plot(idx, dpsnr, "s", ms=4, color="C3", label=f"DPSNR, moving vehicles (mean {np.nanmean(dpsnr):.2f})")
+    for key, marker, color, name in (("dpsnr", "s", "C3", "moving vehicles"), ("dpsnr_pedestrian", "^", "C2", "pedestrians"),
+                                     ("dpsnr_cyclist", "v", "C4", "cyclists")):
+        dpsnr = np.array([m.get(key, np.nan) for m in per_image], dtype=np.float64)
+        if np.isfinite(dpsnr).any():
+            ax.plot(idx, dpsnr, marker, ms=4, color=color, label=f"DPSNR, {name} (mean {np.nanmean(dpsnr):.2f})")
     ax.set_xlabel("held-out image")
     ax.set_ylabel("dB")
     ax.grid(True, lw=0.3)

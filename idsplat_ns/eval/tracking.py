@@ -1,22 +1,23 @@
 """CLEAR-MOT tracking metrics (Bernardin & Stiefelhagen 2008) on object centres, at several distance
 thresholds, over one or many sequences (the paper's supplementary "Tracking results" table).
 
-Per frame and threshold: (1) a ground-truth object keeps the prediction it was last matched to if
-that prediction is present and within the threshold (identity continuity); (2) the remaining pairs
-within the threshold are assigned by the Hungarian algorithm, maximising the number of pairs and
-then minimising the summed distance; a pair whose object was last matched to another prediction is
-an ID switch; (3) unmatched objects are misses (FN), unmatched predictions false positives (FP).
-``MOTA = 1 - (FN + FP + switches) / objects``; ``MOTP`` is the mean distance [m] of matched pairs
-(switches included). Follows py-motmetrics' accumulator rules, so counts agree with it exactly.
+The per-frame accumulation is py-motmetrics' ``MOTAccumulator``: (1) a ground-truth object keeps the
+prediction it was last matched to if that prediction is present and within the threshold; (2) the
+remaining pairs within the threshold are assigned by the Hungarian algorithm; a pair whose object was
+last matched to another prediction is an ID switch; (3) unmatched objects are misses (FN), unmatched
+predictions false positives (FP). ``MOTA = 1 - (FN + FP + switches) / objects``; ``MOTP`` is the mean
+distance [m] of matched pairs (switches included). Over several sequences the counts and matched
+distances are summed (a sequence without matches adds nothing to MOTP, unlike motmetrics' OVERALL row).
 """
 
 from __future__ import annotations
 
-from collections.abc import Hashable, Mapping, Sequence
+from collections.abc import Collection, Hashable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import Optional
 
+import motmetrics
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 from idsplat_ns.errors import IDSplatError
 
@@ -25,8 +26,6 @@ PAPER_THRESHOLDS: tuple[float, ...] = (0.5, 1.0, 2.0, 3.0, 5.0, 10.0)
 
 FrameObjects = Mapping[Hashable, Sequence[float]]  # object id -> xyz [3]
 Track = Mapping[Hashable, FrameObjects]  # frame -> objects in it
-
-_MISSING = object()  # sentinel: an object without a previous match
 
 
 @dataclass(frozen=True)
@@ -71,21 +70,6 @@ class TrackingMetrics:
         return self.num_detections / self.num_predictions if self.num_predictions else float("nan")
 
 
-def _assign(cost: np.ndarray) -> list[tuple[int, int]]:  # cost: [N, M], NaN = not allowed
-    """Pairs of a maximum-cardinality, then minimum-cost assignment over the finite entries.
-
-    Forbidden entries get a constant so large that using one is always worse than any assignment
-    of allowed pairs (``2 r c + 1``, with ``r`` the smaller side and ``c`` above every allowed cost).
-    """
-    allowed = np.isfinite(cost)
-    if not allowed.any():
-        return []
-    c = float(np.abs(cost[allowed]).max()) + 1.0
-    big = 2.0 * min(cost.shape) * c + 1.0
-    rows, cols = linear_sum_assignment(np.where(allowed, cost, big))
-    return [(int(i), int(j)) for i, j in zip(rows, cols) if allowed[i, j]]
-
-
 def _positions(objects: FrameObjects, where: str) -> tuple[list[Hashable], np.ndarray]:
     ids = list(objects.keys())
     if not ids:
@@ -101,64 +85,70 @@ def frame_sort_key(frame: Hashable) -> tuple[int, object]:
     return (0, frame) if isinstance(frame, (int, float, np.integer, np.floating)) else (1, str(frame))
 
 
-def _clear_mot_one(gt: Track, pred: Track, threshold: float) -> TrackingMetrics:
-    frames = sorted(set(gt.keys()) | set(pred.keys()), key=frame_sort_key)
-    last_match: dict[Hashable, Hashable] = {}  # object id -> prediction id it was last matched to
-    n_obj = n_pred = n_match = n_switch = n_fp = n_miss = 0
-    total = 0.0
-    for frame in frames:
-        oids, o_xyz = _positions(gt.get(frame, {}), f"ground truth of frame {frame!r}")
-        hids, h_xyz = _positions(pred.get(frame, {}), f"predictions of frame {frame!r}")
-        n_obj += len(oids)
-        n_pred += len(hids)
-        if oids and hids:
-            if o_xyz.shape[1] != h_xyz.shape[1]:
-                raise IDSplatError(f"clear_mot: frame {frame!r} mixes 2-D and 3-D positions")
-            dist = np.linalg.norm(o_xyz[:, None, :] - h_xyz[None, :, :], axis=2)
-            dist[dist > threshold] = np.nan
-        else:
-            dist = np.full((len(oids), len(hids)), np.nan)
-        o_used = np.zeros(len(oids), dtype=bool)
-        h_used = np.zeros(len(hids), dtype=bool)
-        h_index = {h: j for j, h in enumerate(hids)}
-        # 1. Identity continuity: keep last frame's pairs that are still within the threshold.
-        for i, o in enumerate(oids):
-            j = h_index.get(last_match.get(o, _MISSING))
-            if j is not None and not h_used[j] and np.isfinite(dist[i, j]):
-                o_used[i] = h_used[j] = True
-                n_match += 1
-                total += float(dist[i, j])
-        # 2. Hungarian assignment of the rest.
-        rest = dist.copy()
-        rest[o_used, :] = np.nan
-        rest[:, h_used] = np.nan
-        for i, j in _assign(rest):
-            o, h = oids[i], hids[j]
-            if o in last_match and last_match[o] != h:
-                n_switch += 1
-            else:
-                n_match += 1
-            total += float(dist[i, j])
-            last_match[o] = h
-            o_used[i] = h_used[j] = True
-        # 3./4. Leftovers.
-        n_miss += int((~o_used).sum())
-        n_fp += int((~h_used).sum())
-    return TrackingMetrics(
-        threshold=float(threshold), num_frames=len(frames), num_objects=n_obj, num_predictions=n_pred,
-        num_matches=n_match, num_switches=n_switch, num_false_positives=n_fp, num_misses=n_miss,
-        total_distance=total,
-    )
+def _distances(oids: list, o_xyz: np.ndarray, hids: list, h_xyz: np.ndarray, frame: Hashable) -> np.ndarray:
+    """[N, M] centre distances [m] of a frame's objects and predictions."""
+    if not oids or not hids:
+        return np.zeros((len(oids), len(hids)))
+    if o_xyz.shape[1] != h_xyz.shape[1]:
+        raise IDSplatError(f"clear_mot: frame {frame!r} mixes 2-D and 3-D positions")
+    return np.linalg.norm(o_xyz[:, None, :] - h_xyz[None, :, :], axis=2)
 
 
-def clear_mot(gt: Track, pred: Track, thresholds: Sequence[float] = PAPER_THRESHOLDS) -> dict[float, TrackingMetrics]:
+def _counts(acc: motmetrics.MOTAccumulator, dont_care: list[set[int]]) -> dict[str, float]:
+    """Event counts of an accumulator; a prediction left unmatched in a frame where it is in
+    ``dont_care[frame]`` is neither a false positive nor a prediction."""
+    ev = acc.mot_events  # one row per MATCH / SWITCH / MISS / FP (+ sub-events), indexed (frame, event)
+    kind = ev["Type"].to_numpy()
+    fp_frames = ev.index.get_level_values(0).to_numpy()[kind == "FP"]
+    fp_ids = ev["HId"].to_numpy()[kind == "FP"]
+    ignored = sum(1 for f, h in zip(fp_frames, fp_ids) if int(h) in dont_care[int(f)])
+    paired = np.isin(kind, ("MATCH", "SWITCH"))
+    return {"matches": int((kind == "MATCH").sum()), "switches": int((kind == "SWITCH").sum()),
+            "misses": int((kind == "MISS").sum()), "fp": int((kind == "FP").sum()) - ignored,
+            "ignored": ignored, "distance": float(ev["D"].to_numpy()[paired].sum())}
+
+
+def clear_mot(
+    gt: Track,
+    pred: Track,
+    thresholds: Sequence[float] = PAPER_THRESHOLDS,
+    dont_care: Optional[Mapping[Hashable, Collection[Hashable]]] = None,
+) -> dict[float, TrackingMetrics]:
     """CLEAR-MOT metrics of one sequence at each distance threshold [m].
 
     ``gt`` and ``pred`` map each frame (any sortable key, e.g. a frame index or timestamp) to
     ``{object_id: xyz}``; a frame may be missing from either. Object and prediction ids are
-    independent namespaces. Returns ``{threshold: TrackingMetrics}``.
+    independent namespaces of any hashable keys. ``dont_care`` maps a frame to prediction ids that
+    take part in the matching but, left unmatched there, are neither false positives nor counted
+    predictions (predictions inside regions that do not count, as KITTI's "don't care" boxes).
+    Returns ``{threshold: TrackingMetrics}``.
     """
-    return {float(t): _clear_mot_one(gt, pred, float(t)) for t in thresholds}
+    frames = sorted(set(gt.keys()) | set(pred.keys()), key=frame_sort_key)
+    # motmetrics wants numeric ids and frame numbers (it subtracts them): number them in order.
+    o_num: dict[Hashable, int] = {}
+    h_num: dict[Hashable, int] = {}
+    per_frame, ignore = [], []
+    for frame in frames:
+        oids, o_xyz = _positions(gt.get(frame, {}), f"ground truth of frame {frame!r}")
+        hids, h_xyz = _positions(pred.get(frame, {}), f"predictions of frame {frame!r}")
+        dist = _distances(oids, o_xyz, hids, h_xyz, frame)
+        per_frame.append(([o_num.setdefault(o, len(o_num)) for o in oids],
+                          [h_num.setdefault(h, len(h_num)) for h in hids], dist))
+        ignore.append({h_num[h] for h in (dont_care or {}).get(frame, ()) if h in h_num})
+    n_obj = sum(len(o) for o, _, _ in per_frame)
+    n_pred = sum(len(h) for _, h, _ in per_frame)
+    out: dict[float, TrackingMetrics] = {}
+    for t in thresholds:
+        acc = motmetrics.MOTAccumulator(auto_id=False)
+        for k, (oids, hids, dist) in enumerate(per_frame):
+            acc.update(oids, hids, np.where(dist <= t, dist, np.nan), frameid=k)
+        c = _counts(acc, ignore)
+        out[float(t)] = TrackingMetrics(
+            threshold=float(t), num_frames=len(frames), num_objects=n_obj, num_predictions=n_pred - c["ignored"],
+            num_matches=c["matches"], num_switches=c["switches"], num_false_positives=c["fp"],
+            num_misses=c["misses"], total_distance=c["distance"],
+        )
+    return out
 
 
 def aggregate(per_sequence: Sequence[Mapping[float, TrackingMetrics]]) -> dict[float, TrackingMetrics]:

@@ -4,9 +4,17 @@
 Two protocols. *Observed* (the headline): a ground-truth object counts at a frame only where the
 method could have seen it: its box appears in a camera image of that frame, lies within the lidar
 range the instances are lifted from (80 m) and holds at least 10 lidar points (the paper's filter
-for its dynamic-region masks). A prediction inside an object that does not count there is neither
-a match nor a false positive (a "don't care" region, as in KITTI). *All*: every annotated moving
-vehicle at every frame, whether any sensor of the method saw it or not.
+for its dynamic-region masks). *All*: every annotated moving object of the evaluated classes at
+every frame, whether any sensor of the method saw it or not.
+
+Classes. An evaluation covers a set of classes (:data:`ROAD_USER_CLASSES`): the headline is the
+moving vehicles, as the paper; beside it each class alone and all moving road users together.
+Predictions carry no class here: a prediction left unmatched inside the box (grown by
+``dont_care_margin``) of an object that does not count is neither a match nor a false positive (a
+"don't care" region, as in KITTI). Objects that do not count are the unobserved ones of the
+evaluated classes and every annotated road user (moving or not) of the other classes, so that a
+tracked pedestrian is no false positive of the vehicle evaluation. Parked vehicles and standing
+people of an evaluated class do count against predictions on them.
 """
 
 from __future__ import annotations
@@ -17,7 +25,7 @@ from typing import Callable, Optional, Sequence
 import numpy as np
 
 from idsplat_ns.data.scene import Scene
-from idsplat_ns.data.tracks import ObjectTrack, points_in_box
+from idsplat_ns.data.tracks import ROAD_USER_CLASSES, ObjectTrack, points_in_box
 from idsplat_ns.eval.tracking import PAPER_THRESHOLDS, TrackingMetrics, clear_mot
 
 
@@ -32,7 +40,8 @@ class ObservedFilter:
     require_camera: bool = True
     """The box must project into at least one camera image of the frame."""
     dont_care_margin: float = 1.0
-    """Metres: predictions within an uncounted object's box grown by this are ignored."""
+    """Metres: predictions left unmatched inside the box, grown by this, of an object that does not
+    count (unobserved, or a road user of another class) are not false positives."""
 
 
 class _FrameIndex:
@@ -95,38 +104,64 @@ def ground_truth_positions(
     moving_only: bool = True,
     observed: Optional[ObservedFilter] = None,
 ) -> dict:
-    """``{frame: {track_id: xyz}}`` of the annotated (moving) objects, box centres in the world;
-    with ``observed``, only where the filter counts them."""
-    return _ground_truth(scene, groups, moving_only, observed)[0]
+    """``{frame: {track_id: xyz}}`` of the annotated (moving) objects of the class ``groups``, box
+    centres in the world; with ``observed``, only where the filter counts them."""
+    return _ground_truth(scene, _annotations(scene, observed, moving_only), groups, moving_only)[0]
 
 
-def _ground_truth(scene: Scene, groups: Sequence[str], moving_only: bool, observed: Optional[ObservedFilter]):
-    """Counted positions ``{frame: {id: xyz}}`` and uncounted boxes ``{frame: [(pose, size)]}``."""
-    frames: dict = {int(f): {} for f in scene.frame_indices}
-    ignored: dict = {int(f): [] for f in scene.frame_indices}
+@dataclass(frozen=True)
+class _Annotation:
+    """One annotated box at one frame, with whether the observed filter counts it."""
+
+    frame: int
+    track: ObjectTrack
+    pose: np.ndarray  # [4, 4] box-to-world
+    observed: bool
+
+
+def _annotations(scene: Scene, observed: Optional[ObservedFilter], moving_only: bool = True) -> list[_Annotation]:
+    """Every road user's box at every scene frame, with the observed filter evaluated once (with
+    ``moving_only``, for the moving ones only: only those can count)."""
+    frames = {int(f) for f in scene.frame_indices}
     index = _FrameIndex(scene, observed.max_range) if observed is not None else None
+    out = []
     for track in scene.tracks:
-        if track.group not in groups or (moving_only and not track.moving):
+        if track.group not in ROAD_USER_CLASSES:
             continue
         for k, (f, pose) in enumerate(zip(track.frame_indices, track.poses)):
-            f = int(f)
-            if f not in frames:
+            if int(f) not in frames:
                 continue
-            if observed is None or _observed(index, track, k, f, observed):
-                frames[f][track.track_id] = pose[:3, 3].copy()
-            else:
-                ignored[f].append((pose, track.size))
+            seen = observed is None or ((track.moving or not moving_only) and _observed(index, track, k, int(f), observed))
+            out.append(_Annotation(int(f), track, pose, seen))
+    return out
+
+
+def _ground_truth(scene: Scene, annotations: list[_Annotation], groups: Sequence[str], moving_only: bool):
+    """Counted positions ``{frame: {id: xyz}}`` (every scene frame) and boxes that do not count
+    ``{frame: [(pose, size)]}``: unobserved objects of ``groups`` and every road user of the other
+    classes."""
+    frames: dict = {int(f): {} for f in scene.frame_indices}
+    ignored: dict = {}
+    for a in annotations:
+        counted = frames[a.frame]
+        if a.track.group in groups:
+            if moving_only and not a.track.moving:
+                continue  # a parked car of an evaluated class: a prediction on it is a false positive
+            if a.observed:
+                counted[a.track.track_id] = a.pose[:3, 3].copy()
+                continue
+        ignored.setdefault(a.frame, []).append((a.pose, a.track.size))
     return frames, ignored
 
 
-def _drop_dont_care(pred: dict, ignored: dict, margin: float) -> dict:
-    """Predictions outside every uncounted box (grown by ``margin``)."""
+def _dont_care(pred: dict, ignored: dict, margin: float) -> dict:
+    """``{frame: {prediction id}}`` of the predictions inside a box that does not count (grown by ``margin``)."""
     out = {}
     for f, objects in pred.items():
         boxes = ignored.get(f, [])
         out[f] = {
-            k: xyz for k, xyz in objects.items()
-            if not any(points_in_box(np.asarray(xyz, np.float64)[None], pose, size, margin)[0] for pose, size in boxes)
+            k for k, xyz in objects.items()
+            if any(points_in_box(np.asarray(xyz, np.float64)[None], pose, size, margin)[0] for pose, size in boxes)
         }
     return out
 
@@ -141,32 +176,83 @@ def tracking_summary(
     positions_at: Callable[[float], dict],
     thresholds: Sequence[float] = PAPER_THRESHOLDS,
     observed: Optional[ObservedFilter] = ObservedFilter(),
+    groups: Sequence[str] = ("vehicle",),
 ) -> dict[float, TrackingMetrics]:
-    """CLEAR-MOT of the predicted instance positions against the moving vehicles' GT centres,
-    under the observed protocol (default) or, with ``observed=None``, against all of them."""
-    gt, ignored = _ground_truth(scene, ("vehicle",), True, observed)
+    """CLEAR-MOT of the predicted instance positions against the GT centres of the moving objects
+    of the classes ``groups`` (default: the paper's vehicles), under the observed protocol
+    (default) or, with ``observed=None``, against all of them."""
+    return class_tracking_summaries(scene, positions_at, {"_": tuple(groups)}, thresholds, observed, keep_absent=True)["_"]
+
+
+TRACKING_CLASS_SETS: dict[str, tuple[str, ...]] = {
+    "vehicle": ("vehicle",),
+    "pedestrian": ("pedestrian",),
+    "cyclist": ("cyclist",),
+    "road_users": ROAD_USER_CLASSES,
+}
+"""The evaluations of :func:`class_tracking_summaries`: each class alone, and all road users."""
+
+
+def class_tracking_summaries(
+    scene: Scene,
+    positions_at: Callable[[float], dict],
+    class_sets: dict[str, Sequence[str]] = TRACKING_CLASS_SETS,
+    thresholds: Sequence[float] = PAPER_THRESHOLDS,
+    observed: Optional[ObservedFilter] = ObservedFilter(),
+    keep_absent: bool = False,
+) -> dict[str, dict[float, TrackingMetrics]]:
+    """:func:`tracking_summary` for several class sets ``{name: classes}`` at once (the observed
+    filter and the predictions are evaluated once). A set without annotated moving objects in the
+    scene is left out of the result unless ``keep_absent``."""
+    annotations = _annotations(scene, observed)
+    margin = (observed or ObservedFilter()).dont_care_margin
     pred = predicted_positions(scene, positions_at)
-    if observed is not None:
-        pred = _drop_dont_care(pred, ignored, observed.dont_care_margin)
-    return clear_mot(gt, pred, thresholds)
+    out = {}
+    for name, groups in class_sets.items():
+        if not keep_absent and not any(t.moving and t.group in groups for t in scene.tracks):
+            continue
+        gt, ignored = _ground_truth(scene, annotations, tuple(groups), True)
+        out[name] = clear_mot(gt, pred, thresholds, dont_care=_dont_care(pred, ignored, margin))
+    return out
 
 
 def flatten_metrics(
     results: dict[float, TrackingMetrics], thresholds: Sequence[float] = (1.0, 2.0, 5.0), prefix: str = ""
 ) -> dict[str, float]:
-    """Flat ``{"mota@2m": ..., "motp@2m": ..., "recall@2m": ..., ...}`` for logs and JSON
-    (each key preceded by ``prefix``, e.g. ``all_``)."""
+    """Flat ``{"mota@2m": ..., "motp@2m": ..., "objects@2m": ..., ...}`` for logs and JSON (each key
+    preceded by ``prefix``, e.g. ``pedestrian_``); empty where no object counted (a class the data
+    does not show has no metrics, not zeros). MOTP is absent without matches."""
     out: dict[str, float] = {}
     for th in thresholds:
-        if th in results:
-            m = results[th]
-            tag = f"@{th:g}m"
-            out[prefix + "mota" + tag] = float(m.mota)
-            out[prefix + "motp" + tag] = float(m.motp) if np.isfinite(m.motp) else float("nan")
-            out[prefix + "recall" + tag] = float(m.recall)
+        m = results.get(th)
+        if m is None or m.num_objects == 0:
+            continue
+        tag = f"@{th:g}m"
+        out[prefix + "mota" + tag] = float(m.mota)
+        if m.num_detections:
+            out[prefix + "motp" + tag] = float(m.motp)
+        out[prefix + "recall" + tag] = float(m.recall)
+        if m.num_predictions:
             out[prefix + "precision" + tag] = float(m.precision)
-            out[prefix + "id_switches" + tag] = float(m.num_switches)
-            out[prefix + "objects" + tag] = float(m.num_objects)
+        out[prefix + "objects" + tag] = float(m.num_objects)
+        out[prefix + "matches" + tag] = float(m.num_matches)
+        out[prefix + "false_positives" + tag] = float(m.num_false_positives)
+        out[prefix + "misses" + tag] = float(m.num_misses)
+        out[prefix + "id_switches" + tag] = float(m.num_switches)
+    return out
+
+
+def tracking_metrics(scene: Scene, positions_at: Callable[[float], dict]) -> dict[str, float]:
+    """What ns-eval reports: the observed protocol for the moving vehicles (no prefix, the paper's
+    headline), each other class (``pedestrian_``, ``cyclist_``; ``vehicle`` is the headline) and all
+    moving road users (``road_users_``), and the all-objects protocol for the vehicles (``all_``).
+    Classes the scene does not annotate as moving are absent."""
+    observed = class_tracking_summaries(scene, positions_at)
+    out: dict[str, float] = {}
+    for name, results in observed.items():
+        out.update(flatten_metrics(results, prefix="" if name == "vehicle" else f"{name}_"))
+    if "vehicle" in observed:
+        out.update(flatten_metrics(tracking_summary(scene, positions_at, observed=None), prefix="all_"))
     return out
 
 

@@ -30,6 +30,7 @@ from tqdm import tqdm
 
 from idsplat_ns.data.lidar import LidarSweep
 from idsplat_ns.data.scene import Scene
+from idsplat_ns.data.tracks import class_from_size_speed
 from idsplat_ns.errors import IDSplatError
 from idsplat_ns.instances.masks.base import InstanceMaskSet, MaskSource, mask_filename, write_instance_map, write_labels
 
@@ -119,15 +120,35 @@ class MotionTrack:
         """Metres between the first and the last centroid on the ground."""
         return float(np.linalg.norm(self.clusters[-1].centroid[:2] - self.clusters[0].centroid[:2]))
 
+    def mean_speed(self) -> float:
+        """m/s of the centroid from its first to its last cluster (NaN for a single time)."""
+        t0, t1 = float(np.mean(self.clusters[0].times)), float(np.mean(self.clusters[-1].times))
+        return self.displacement() / (t1 - t0) if t1 > t0 else float("nan")
+
+    def footprint(self) -> tuple[float, float]:
+        """(length, width) metres on the ground along the principal axes of the cluster that holds
+        the most points, grown to the 80th percentile of the lengths over the track's clusters
+        (one view often shows a single face of the object)."""
+        extents = []  # (points, [2] extent along the major and minor axis)
+        for c in self.clusters:
+            xy = c.points[:, :2] - c.points[:, :2].mean(0)
+            if len(xy) < 3:
+                continue
+            _, _, axes = np.linalg.svd(xy, full_matrices=False)
+            extents.append((len(xy), np.ptp(xy @ axes.T, axis=0)))
+        if not extents:
+            return float("nan"), float("nan")
+        best = max(extents, key=lambda e: e[0])[1]
+        length = max(float(best[0]), float(np.percentile([e[1][0] for e in extents], 80)))
+        return length, float(best[1])
+
     def label(self) -> str:
-        """A class guess from the footprint (the source has no detector label)."""
-        pts = max(self.clusters, key=lambda c: len(c.points)).points
-        extent = np.ptp(pts[:, :2], axis=0)
-        length, width = float(extent.max()), float(extent.min())
-        if length < 1.2 and width < 1.0:
-            return "pedestrian"
-        if length < 2.4 and width < 1.2:
-            return "cyclist"
+        """A class guess from the footprint and the speed (the source has no detector label):
+        ``pedestrian``, ``cyclist``, ``car`` or (longer than 6.5 m) ``truck``."""
+        length, width = self.footprint()
+        cls = class_from_size_speed(length, width, self.mean_speed())
+        if cls != "vehicle":
+            return cls if cls != "other" else "object"
         return "truck" if length > 6.5 else "car"
 
 
@@ -347,6 +368,11 @@ def render_track_masks(scene: Scene, tracks: list[MotionTrack], config: LidarMot
         write_instance_map(out_dir / mask_filename(image.camera, image.frame_index), ids)
 
 
+def _finite_or_none(value: float):
+    """JSON has no NaN: None where a value is unknown."""
+    return round(float(value), 3) if np.isfinite(value) else None
+
+
 class LidarMotionMaskSource(MaskSource):
     """Instance masks from moving lidar clusters (no model files, no annotations)."""
 
@@ -356,7 +382,9 @@ class LidarMotionMaskSource(MaskSource):
         self.config = config
 
     def cache_key(self) -> dict:
-        return {"kind": self.name, **asdict(self.config)}
+        # labels: 2 since the class guess uses the speed and the track's footprint (cached
+        # instances.json files of version 1 carry footprint-only guesses).
+        return {"kind": self.name, "labels": 2, **asdict(self.config)}
 
     def generate(self, scene: Scene, out_dir: Path, progress: bool = True) -> InstanceMaskSet:
         out_dir = Path(out_dir)
@@ -364,6 +392,9 @@ class LidarMotionMaskSource(MaskSource):
         tracks = moving_tracks(scene, self.config, progress)
         render_track_masks(scene, tracks, self.config, out_dir, progress)
         labels = {tr.track_id: tr.label() for tr in tracks}
-        write_labels(out_dir, labels, {tr.track_id: {"frames": len(tr.clusters), "motion_score": tr.median_score()} for tr in tracks})
+        write_labels(out_dir, labels, {tr.track_id: {"frames": len(tr.clusters), "motion_score": tr.median_score(),
+                                                      "speed": _finite_or_none(tr.mean_speed()),
+                                                      "footprint": [_finite_or_none(v) for v in tr.footprint()]}
+                                 for tr in tracks})
         return InstanceMaskSet(out_dir, labels, self.name)
 

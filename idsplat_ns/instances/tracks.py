@@ -1,4 +1,5 @@
-"""The result of instance decomposition: per instance, a class, canonical points and per-frame poses.
+"""The result of instance decomposition: per instance, a label and its class, canonical points and
+per-frame poses.
 
 Conventions (../shared/DESIGN.md): instance IDs start at 1 (0 is the static background); the pose
 ``poses[k]`` maps the instance's canonical frame to the world at ``frame_times[k]``.
@@ -13,6 +14,7 @@ from typing import Optional
 import numpy as np
 
 from idsplat_ns.data.geometry import invert_pose
+from idsplat_ns.data.tracks import label_group
 from idsplat_ns.errors import IDSplatError
 from idsplat_ns.instances.cache import load_npz, save_npz
 
@@ -24,7 +26,8 @@ class InstanceTrack:
     instance_id: int
     """ID >= 1, unique within the sequence."""
     label: str
-    """Class name from the mask source (e.g. ``car``)."""
+    """Raw class name from the mask source (a detector prompt such as ``car``, an annotation label
+    such as ``Pedestrian with Object`` in oracle mode, or the lidar-motion source's guess)."""
     canonical_points: np.ndarray
     """[N, 3] float64 lidar points in the canonical frame (all successfully registered times)."""
     canonical_colors: Optional[np.ndarray]
@@ -89,6 +92,11 @@ class InstanceTrack:
         return out if np.all(np.diff(out) > 0) else np.array(frame_times, dtype=np.float64, copy=True)
 
     @property
+    def category(self) -> str:
+        """The evaluation class of the label: ``vehicle``, ``pedestrian``, ``cyclist`` or ``other``."""
+        return label_group(self.label)
+
+    @property
     def num_valid(self) -> int:
         return int(self.valid.sum())
 
@@ -115,6 +123,13 @@ class InstanceTracks:
     points stay in the background)."""
     metadata: dict = field(default_factory=dict)
     """Which mask source and feature extractor ran, config hashes, smoothing status."""
+
+    def class_counts(self) -> dict[str, int]:
+        """Dynamic instances per class, e.g. ``{"vehicle": 5, "pedestrian": 2}`` (classes present only)."""
+        counts: dict[str, int] = {}
+        for inst in self.instances:
+            counts[inst.category] = counts.get(inst.category, 0) + 1
+        return counts
 
     def instance(self, instance_id: int) -> InstanceTrack:
         for inst in self.instances + self.static_instances:

@@ -3,13 +3,17 @@
 Layout (``idsplat-preprocess --export``; ``--pipeline.datamanager.import-tracks`` reads it)::
 
     {"format": "idsplat-tracks/1", "sequence": NAME, "world": "dataset",
-     "instances": [{"id": 1, "label": "car",
+     "instances": [{"id": 1, "label": "car", "class": "vehicle",
                     "times": [seconds, the data's own timestamps],
                     "poses": [[4x4 canonical-to-world in the data's own world frame], ...],
                     "num_points": [lidar points seen at each time],
                     "measured": [true where a registration measured the pose],
                     "canonical_points": [[x, y, z], ...]      (optional)
                     "size": [length, width, height]}]}        (optional; used when there are no points)
+
+``label`` is the raw class name (detector prompt, annotation label or the lidar-motion guess);
+``class`` is its evaluation class (``vehicle``, ``pedestrian``, ``cyclist`` or ``other``), written on
+export and, on import, used as the label of an entry that has no ``label``.
 
 On import an instance is placed at each frame of the scene inside its time span (translation
 interpolated linearly, rotation by slerp) and is absent outside it. Its points are the listed
@@ -50,6 +54,7 @@ def tracks_to_json(tracks: InstanceTracks, scene: Scene) -> dict:
         out.append({
             "id": int(inst.instance_id),
             "label": inst.label,
+            "class": inst.category,
             "times": [float(tracks.frame_times[k]) + offset for k in keep],
             "poses": [np.round(raw_from_world @ inst.poses[k], 6).tolist() for k in keep],
             "num_points": [int(inst.point_counts[k]) for k in keep],
@@ -149,7 +154,7 @@ def tracks_from_json(path: Path, scene: Scene) -> InstanceTracks:
         if not valid.any():
             continue  # outside the frames loaded
         instances.append(InstanceTrack(
-            instance_id=int(entry["id"]), label=str(entry.get("label", "object")), canonical_points=points,
+            instance_id=int(entry["id"]), label=str(entry.get("label", entry.get("class", "object"))), canonical_points=points,
             canonical_colors=None, poses=poses, valid=valid, point_counts=counts, fitness=valid.astype(np.float64),
             canonical_frame=int(np.argmax(np.where(valid, counts, -1))),
         ))

@@ -3,9 +3,11 @@
 Read from the tensors of :class:`~idsplat_ns.model.editing.SceneTensors` (no nerfstudio). The
 size is the extent of the instance's opaque Gaussians (2nd to 98th percentile of their centres,
 so stray splats do not inflate it) along the principal horizontal axes of its footprint: the
-canonical frame of a self-supervised instance need not be aligned with the vehicle. The class is a
-guess from that size alone (pedestrian, two-wheeler, car, van, truck/bus); it costs nothing and
-is labelled a guess wherever it is shown.
+canonical frame of a self-supervised instance need not be aligned with the vehicle. The class
+(vehicle, pedestrian, cyclist) is a guess from that size and the mean speed
+(:func:`idsplat_ns.data.tracks.class_from_size_speed`, the rule of the lidar-motion source); it costs
+nothing and is labelled a guess wherever it is shown. The class of the instance decomposition itself
+(from the detector's label, the annotations or the lidar-motion source) is in its tracks.
 """
 
 from __future__ import annotations
@@ -15,11 +17,9 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from idsplat_ns.data.tracks import class_from_size_speed
 from idsplat_ns.model.editing import SceneTensors
 
-# Footprint length thresholds (metres) of the class guess; typical lengths: pedestrian < 1,
-# bicycle/motorbike ~2, car 4-5, van 5-7, truck/bus > 8.
-CLASS_BY_LENGTH = ((1.3, "pedestrian"), (2.7, "two-wheeler"), (6.0, "car"), (8.5, "van"), (float("inf"), "truck/bus"))
 MIN_OPACITY = 0.3  # below this a Gaussian hardly shows and should not decide the size
 
 
@@ -31,17 +31,14 @@ class InstanceSummary:
     num_gaussians: int
     mean_speed: float  # m/s over the valid span (path length / duration); 0 for a single step
     size: tuple[float, float, float]  # (length, width, height) metres, see the module doc
-    class_guess: str
+    class_guess: str  # vehicle / pedestrian / cyclist from size and speed, or unknown
 
 
-def guess_class(length: float, width: float) -> str:
-    """A class name from the footprint alone (``unknown`` without Gaussians)."""
-    if not np.isfinite(length) or length <= 0:
-        return "unknown"
-    for limit, name in CLASS_BY_LENGTH:
-        if max(length, width) < limit:
-            return name
-    return CLASS_BY_LENGTH[-1][1]
+def guess_class(length: float, width: float, speed: float = float("nan")) -> str:
+    """``vehicle``, ``pedestrian`` or ``cyclist`` from the footprint (metres) and mean speed (m/s);
+    ``unknown`` without Gaussians."""
+    cls = class_from_size_speed(length, width, speed)
+    return "unknown" if cls == "other" else cls
 
 
 def instance_size(means: np.ndarray, opacities: np.ndarray) -> tuple[float, float, float]:
@@ -83,6 +80,7 @@ def summarise_instances(scene: SceneTensors) -> list[InstanceSummary]:
         out.append(InstanceSummary(
             instance_id=iid,
             first_time=float(times[max(first, 0)]), last_time=float(times[max(last, 0)]),
-            num_gaussians=int(mine.sum()), mean_speed=speed, size=size, class_guess=guess_class(size[0], size[1]),
+            num_gaussians=int(mine.sum()), mean_speed=speed, size=size,
+            class_guess=guess_class(size[0], size[1], speed if last > first else float("nan")),
         ))
     return out

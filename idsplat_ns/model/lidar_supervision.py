@@ -1,6 +1,7 @@
 """Lidar supervision of a :class:`~idsplat_ns.model.scene_model.SceneModel`: a batch of rays from
 one training sweep per (k-th) step, rendered at the rays' own times and turned into the paper's
-lidar losses; and whole-sweep renders with the Table-2 metrics for evaluation.
+lidar losses; and whole-sweep renders with the Table-2 metrics for evaluation (the ray-drop
+accuracy only where the data marks rays without a return).
 
 Batches: each lidar step draws one training sweep uniformly and ``rays_per_step`` of its rays
 uniformly (returned or not). One sweep per step keeps the time bins narrow (a sweep spans ~0.1 s)
@@ -11,7 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Optional
+from typing import Callable, Optional
 
 import numpy as np
 import torch
@@ -159,16 +160,60 @@ def render_sweep(
     )  # fmt: skip
 
 
-def sweep_metrics(render: SweepRender, drop_threshold: float = 0.5) -> dict[str, float]:
-    """Table-2 lidar metrics of one rendered sweep, named ``lidar_*`` for evaluation output."""
+RAYDROP_NOTE = (
+    "lidar ray-drop accuracy not computed: the data has no rays without a return to compare with "
+    "(PandaSet layout stores returns only; Waymo range images and the built-in street have them)"
+)
+
+
+def has_drop_labels(sweeps: list[LidarSweep]) -> bool:
+    """Whether the lidar data marks rays that returned nothing: without any, every ray counts as
+    returned and a ray-drop accuracy would only measure how often the model predicts a drop."""
+    return any(s.num_rays > 0 and not bool(np.all(s.returned)) for s in sweeps)
+
+
+def sweep_metrics(render: SweepRender, drop_threshold: float = 0.5, drop_labels: bool = True) -> dict[str, float]:
+    """Table-2 lidar metrics of one rendered sweep, named ``lidar_*`` for evaluation output; the
+    ray-drop accuracy only with ``drop_labels`` (see :func:`has_drop_labels`)."""
     rays = render.rays
     m = lidar_metrics(
         render.range, render.intensity, render.ray_drop_prob, rays.ranges.numpy(), rays.intensities.numpy(),
         rays.returned.numpy(), rays.origins.numpy(), rays.directions.numpy(), drop_threshold=drop_threshold,
     )  # fmt: skip
-    return {
+    out = {
         "lidar_depth_median_sq_err": m["depth_median_sq"],
         "lidar_intensity_rmse": m["intensity_rmse"],
         "lidar_raydrop_acc": m["ray_drop_accuracy"],
         "lidar_chamfer": m["chamfer"],
     }
+    if not drop_labels:
+        del out["lidar_raydrop_acc"]
+    return out
+
+
+def held_out_lidar_metrics(
+    scene: Scene,
+    sweeps: list[LidarSweep],
+    render: Callable[[LidarSweep], SweepRender],
+    drop_threshold: float = 0.5,
+    advance: Callable[[], None] = lambda: None,
+) -> tuple[dict[str, float], Optional[str]]:
+    """Lidar metrics averaged over ``sweeps`` (NaN sweeps left out; a metric NaN in every sweep
+    is absent), with ``lidar_num_sweeps``; and a one-line note on what the data cannot measure
+    (None when everything was measured). ``render`` renders one sweep; ``advance`` is called after
+    each (a progress bar)."""
+    if not sweeps:
+        return {}, None
+    drop_labels = has_drop_labels(scene.lidar)
+    per_sweep = []
+    for sweep in sweeps:
+        per_sweep.append(sweep_metrics(render(sweep), drop_threshold, drop_labels))
+        advance()
+    out: dict[str, float] = {}
+    for key in per_sweep[0]:
+        values = np.array([m[key] for m in per_sweep], dtype=np.float64)
+        finite = values[np.isfinite(values)]
+        if finite.size:
+            out[key] = float(finite.mean())
+    out["lidar_num_sweeps"] = len(per_sweep)
+    return out, None if drop_labels else RAYDROP_NOTE

@@ -35,7 +35,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--output-dir", type=Path, default=None, help="folder of the edited run (needed for any edit)")
     p.add_argument("--list", action="store_true", help="print the instances (after the edits, if any)")
     p.add_argument("--points", action="store_true",
-                   help="with --list: also the lidar points and label of each instance, from the run's data "
+                   help="with --list: also the lidar points, label and class of each instance, from the run's data "
                         "(re-reads the data and its instance decomposition, cached: seconds to minutes)")
     p.add_argument("--remove", type=int, nargs="+", default=[], metavar="ID", help="remove these instances")
     p.add_argument("--move", type=float, nargs=5, action="append", default=[], metavar=("ID", "DX", "DY", "DZ", "DYAW"),
@@ -85,18 +85,18 @@ def apply_edits(scene, args: argparse.Namespace) -> list[str]:
     return done
 
 
-def instance_points(config) -> dict[int, tuple[int, str]]:
-    """``{instance_id: (lidar points, label)}`` of the run's instance decomposition, rebuilt from its
+def instance_points(config) -> dict[int, tuple[int, str, str]]:
+    """``{instance_id: (lidar points, label, class)}`` of the run's instance decomposition, rebuilt from its
     data as ns-eval does (stage caches make it cheap the second time). IDs that the data does not
     have (duplicates) are absent."""
     datamanager = config.pipeline.datamanager.setup(device="cpu", test_mode="inference")
     tracks = datamanager.train_dataset.metadata.get("instance_tracks")
     if tracks is None:
         return {}
-    return {int(t.instance_id): (len(t.canonical_points), str(t.label)) for t in tracks.instances}
+    return {int(t.instance_id): (len(t.canonical_points), str(t.label), t.category) for t in tracks.instances}
 
 
-def print_instances(scene, console: Console, points: dict[int, tuple[int, str]] | None = None) -> None:
+def print_instances(scene, console: Console, points: dict[int, tuple[int, str, str]] | None = None) -> None:
     from idsplat_ns.model.instance_summary import summarise_instances
 
     rows = summarise_instances(scene)
@@ -104,16 +104,16 @@ def print_instances(scene, console: Console, points: dict[int, tuple[int, str]] 
     table = Table(title=f"{len(rows)} instances, {static} static Gaussians")
     columns = ["ID", "class (guess)", "from (s)", "to (s)", "Gaussians", "speed (m/s)", "L x W x H (m)"]
     if points is not None:
-        columns += ["lidar points", "label"]
+        columns += ["lidar points", "label", "class"]
     for col in columns:
-        table.add_column(col, justify="left" if col in ("class (guess)", "label") else "right")
+        table.add_column(col, justify="left" if col in ("class (guess)", "label", "class") else "right")
     for r in rows:
         size = " x ".join(f"{v:.1f}" for v in r.size)
         cells = [str(r.instance_id), r.class_guess, f"{r.first_time:.2f}", f"{r.last_time:.2f}",
                  str(r.num_gaussians), f"{r.mean_speed:.1f}", size]
         if points is not None:
-            n, label = points.get(r.instance_id, (None, "?"))
-            cells += ["?" if n is None else str(n), label]
+            n, label, cls = points.get(r.instance_id, (None, "?", "?"))
+            cells += ["?" if n is None else str(n), label, cls]
         table.add_row(*cells)
     console.print(table)
 

@@ -1,6 +1,8 @@
 """IDSplat pipeline: the vanilla pipeline with an evaluation average that tolerates metrics only
-some images have (DPSNR needs moving objects in view) and says what it could not compute, plus the
-tracking metrics, the render speed and the lidar metrics of the held-out sweeps."""
+some images have (DPSNR of a class needs moving objects of that class in view), plus the tracking
+metrics per class, the render speed and the lidar metrics of the held-out sweeps. A metric the data
+or the given files cannot support (LPIPS without weights, ray drop without drop labels) is absent
+from ns-eval's JSON, and a ``<metric>_note`` line there says why."""
 
 from __future__ import annotations
 
@@ -16,13 +18,11 @@ from PIL import Image
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+from idsplat_ns.eval.lpips import LPIPS_NOTE
+from idsplat_ns.eval.metric_average import average_image_metrics
 from idsplat_ns.nerfstudio.dataset import frames_of_split
 
 CONSOLE = Console()
-LPIPS_NOTE = (
-    "LPIPS not computed: no backbone weights given (nothing is downloaded); pass "
-    "--pipeline.model.lpips-backbone <torchvision alexnet or vgg16 .pth file>"
-)
 
 
 @dataclass
@@ -37,17 +37,16 @@ class IDSplatPipeline(VanillaPipeline):
     the tracking metrics of the instance trajectories and the render speed."""
 
     def _tracking_metrics(self) -> dict:
-        """CLEAR-MOT of the (optimised) trajectories against the ground truth, when both exist."""
+        """CLEAR-MOT of the (optimised) trajectories against the ground truth, when both exist:
+        vehicles (the headline), each other class and all moving road users, with their counts."""
         trajectories = self.model.scene_model.trajectories
         scene = self.datamanager.scene
         if trajectories is None or not any(t.moving for t in scene.tracks):
             return {}
-        from idsplat_ns.eval.trajectory_eval import flatten_metrics, tracking_summary
+        from idsplat_ns.eval.trajectory_eval import tracking_metrics
 
         with torch.no_grad():
-            observed = flatten_metrics(tracking_summary(scene, trajectories.positions_at))
-            every = flatten_metrics(tracking_summary(scene, trajectories.positions_at, observed=None), prefix="all_")
-        return {**observed, **every}
+            return tracking_metrics(scene, trajectories.positions_at)
 
     def _held_out_sweeps(self) -> list:
         """Lidar sweeps of the evaluation frames (none for camera-only models or scenes)."""
@@ -58,31 +57,25 @@ class IDSplatPipeline(VanillaPipeline):
         frames = frames_of_split(self.datamanager.eval_dataset.metadata)
         return sweeps_of_frames(self.datamanager.scene, frames)
 
-    def _lidar_metrics(self, progress: Progress) -> dict:
-        """Table-2 lidar metrics averaged over the held-out sweeps (NaN sweeps left out)."""
-        from idsplat_ns.model.lidar_supervision import sweep_metrics
+    def _lidar_metrics(self, progress: Progress) -> tuple[dict, Optional[str]]:
+        """Table-2 lidar metrics averaged over the held-out sweeps, and a note on what the data
+        cannot measure (the ray-drop accuracy without drop labels)."""
+        from idsplat_ns.model.lidar_supervision import held_out_lidar_metrics
 
         sweeps = self._held_out_sweeps()
         if not sweeps:
-            return {}
-        per_sweep = []
+            return {}, None
         task = progress.add_task("[green]Evaluating held-out lidar sweeps...", total=len(sweeps))
-        for sweep in sweeps:
-            per_sweep.append(sweep_metrics(self.model.render_lidar_sweep(sweep), self.model.config.lidar.drop_threshold))
-            progress.advance(task)
-        out: dict = {}
-        for key in per_sweep[0]:
-            values = np.array([m[key] for m in per_sweep], dtype=np.float64)
-            finite = values[np.isfinite(values)]
-            out[key] = float(finite.mean()) if finite.size else float("nan")
-        out["lidar_num_sweeps"] = len(per_sweep)
-        return out
+        return held_out_lidar_metrics(self.datamanager.scene, sweeps, self.model.render_lidar_sweep,
+                                      self.model.config.lidar.drop_threshold, lambda: progress.advance(task))
 
     def _write_plots(self, folder: Path, per_image: list) -> list[str]:
         """Plots of the evaluation (ns-eval with --render-output-path only): the top view of the
-        learned trajectories with their IDs, the annotated moving vehicles and the ego path, each
-        instance's position error over time, and PSNR / DPSNR per held-out image."""
+        learned trajectories with their IDs, the annotated moving road users and the ego path, each
+        instance's position error over time, and PSNR / DPSNR per held-out image. Ground truth: the
+        annotated moving road users of every class."""
         from idsplat_ns.eval.metric_plots import plot_per_image
+        from idsplat_ns.data.tracks import ROAD_USER_CLASSES
         from idsplat_ns.eval.trajectory_eval import ground_truth_positions, predicted_positions
         from idsplat_ns.eval.trajectory_plots import plot_position_errors, plot_scene_top_view
 
@@ -90,7 +83,7 @@ class IDSplatPipeline(VanillaPipeline):
         trajectories = self.model.scene_model.trajectories
         with torch.no_grad():
             pred = predicted_positions(scene, trajectories.positions_at) if trajectories is not None else {}
-        gt = ground_truth_positions(scene)
+        gt = ground_truth_positions(scene, groups=ROAD_USER_CLASSES)
         title = f"{scene.name}: top view"
         top = plot_scene_top_view(gt, pred, scene.ego_poses[:, :3, 3], folder / "plots" / "trajectories_top.png", title)
         plots = [top]
@@ -120,19 +113,8 @@ class IDSplatPipeline(VanillaPipeline):
                         arr = (image.detach().clamp(0, 1).cpu().numpy() * 255).astype(np.uint8)
                         Image.fromarray(arr).save(output_path / f"{image_prefix}_{key}_{idx:04d}.png")
                 progress.advance(task)
-            lidar = self._lidar_metrics(progress)
-        keys = list(dict.fromkeys(k for m in per_image for k in m))
-        result: dict = {}
-        for key in keys:
-            values = torch.tensor([m[key] for m in per_image if key in m], dtype=torch.float64)
-            result[key] = float(values.mean())
-            if get_std:
-                result[f"{key}_std"] = float(values.std()) if len(values) > 1 else 0.0
-            if len(values) != len(per_image):
-                result[f"{key}_num_images"] = len(values)
-        result["num_images"] = len(per_image)
-        result["render_mpix_per_s"] = result.pop("num_rays_per_sec") / 1e6
-        result.pop("num_rays_per_sec_std", None)
+            lidar, lidar_note = self._lidar_metrics(progress)
+        result = average_image_metrics(per_image, get_std)
         result.update(self._tracking_metrics())
         result.update(lidar)
         if output_path is not None and step is None:  # ns-eval writing renders: the plots go beside them
@@ -145,9 +127,11 @@ class IDSplatPipeline(VanillaPipeline):
             tracks = self.datamanager.train_dataset.metadata.get("instance_tracks")
             if tracks is not None and tracks.metadata.get("mask_source"):
                 result["mask_source"] = tracks.metadata["mask_source"]
-        if "lpips" not in result and step is None:
-            # Only for ns-eval's JSON (step None): the trainer logs metrics as scalars.
-            result["lpips_note"] = LPIPS_NOTE
-            CONSOLE.print(f"[yellow]note: {LPIPS_NOTE}")
+        if step is None:  # notes only in ns-eval's JSON: the trainer logs metrics as scalars
+            notes = {"lpips_note": LPIPS_NOTE if "lpips" not in result else None, "lidar_raydrop_note": lidar_note}
+            for key, note in notes.items():
+                if note is not None:
+                    result[key] = note
+                    CONSOLE.print(f"[yellow]note: {note}")
         self.train()
         return result

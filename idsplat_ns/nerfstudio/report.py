@@ -1,4 +1,5 @@
-"""Print an ``ns-eval`` result as a table, with where the renders and checkpoint are."""
+"""Print an ``ns-eval`` result as tables (image and lidar metrics; tracking per class with its
+counts), the notes on metrics the data could not support, and where the renders and checkpoint are."""
 
 from __future__ import annotations
 
@@ -20,7 +21,7 @@ ROWS = (
     ("lpips", "LPIPS"),
     ("mota@2m", "tracking MOTA @ 2 m (observed vehicles)"),
     ("motp@2m", "tracking MOTP @ 2 m (m)"),
-    ("all_mota@2m", "tracking MOTA @ 2 m (all annotated, seen or not)"),
+    ("all_mota@2m", "tracking MOTA @ 2 m (all annotated vehicles, seen or not)"),
     ("lidar_depth_median_sq_err", "lidar depth median squared error (m^2)"),
     ("lidar_intensity_rmse", "lidar intensity RMSE"),
     ("lidar_raydrop_acc", "lidar ray-drop accuracy"),
@@ -28,13 +29,42 @@ ROWS = (
     ("render_mpix_per_s", "render speed (MP/s)"),
 )
 
+TRACKING_ROWS = (("", "vehicles (headline)"), ("pedestrian_", "pedestrians"), ("cyclist_", "cyclists"),
+                 ("road_users_", "all moving road users"), ("all_", "vehicles, seen or not"))
+"""Key prefix and name of each tracking evaluation (eval/trajectory_eval.py: tracking_metrics)."""
+TRACKING_COLUMNS = (("objects", "objects"), ("matches", "matches"), ("id_switches", "switches"),
+                    ("false_positives", "FP"), ("misses", "FN"), ("mota", "MOTA"), ("motp", "MOTP (m)"))
 
-def main() -> None:
+
+def tracking_table(results: dict, threshold: str = "2m") -> Table | None:
+    """Per-class CLEAR-MOT at one threshold, one row per evaluation present in ``results``."""
+    rows = [(prefix, name) for prefix, name in TRACKING_ROWS if f"{prefix}mota@{threshold}" in results]
+    if not rows:
+        return None
+    table = Table(title=f"Tracking @ {threshold[:-1]} m (CLEAR-MOT; other classes' regions are don't care)")
+    table.add_column("class")
+    for _, name in TRACKING_COLUMNS:
+        table.add_column(name, justify="right")
+    for prefix, name in rows:
+        cells = []
+        for key, _ in TRACKING_COLUMNS:
+            value = results.get(f"{prefix}{key}@{threshold}")
+            cells.append("" if value is None else f"{value:.0f}" if key not in ("mota", "motp") else f"{value:.3f}")
+        table.add_row(name, *cells)
+    return table
+
+
+def notes(results: dict) -> list[str]:
+    """The one-line notes of metrics left out (``<metric>_note`` keys), in key order."""
+    return [str(results[k]) for k in sorted(results) if k.endswith("_note")]
+
+
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("eval_json", type=Path)
     parser.add_argument("--renders", type=Path, default=None)
     parser.add_argument("--checkpoint-dir", type=Path, default=None)
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
 
     def run() -> None:
         if not args.eval_json.is_file():
@@ -53,8 +83,11 @@ def main() -> None:
                 table.add_row(label, f"{results[key]:.4f}", "" if std is None else f"{std:.4f}")
         console = Console()
         console.print(table)
-        if "lpips_note" in results:
-            console.print(f"[yellow]{results['lpips_note']}")
+        tracking = tracking_table(results)
+        if tracking is not None:
+            console.print(tracking)
+        for note in notes(results):
+            console.print(f"[yellow]note: {note}")
         if args.renders is not None:
             console.print(f"renders:    {args.renders.resolve()}")
         for plot in results.get("plots", []):

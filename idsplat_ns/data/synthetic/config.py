@@ -89,6 +89,12 @@ class SyntheticConfig:
     """Rotation of the street about world z (so that the road is not axis aligned in world)."""
     start_time: float = 1_557_540_000.0
     """Unix time of frame 0."""
+    num_pedestrians: int = 3
+    """Walking pedestrians (label "Pedestrian"): the first crosses the road on the zebra crossing, the
+    others walk along the sidewalks. Legs and arms swing with the gait (non-rigid in their cuboid)."""
+    num_cyclists: int = 1
+    """Cyclists riding in the traffic lanes (label "Bicycle", one cuboid for rider and bicycle). Legs,
+    cranks and wheels turn with the pedalling (non-rigid in their cuboid)."""
 
     @property
     def duration(self) -> float:
@@ -97,10 +103,12 @@ class SyntheticConfig:
 
 
 PRESETS: dict[str, SyntheticConfig] = {
-    # Tests: seconds to make on 2 cores; still 64 beams and three cameras.
+    # Tests: seconds to make on 2 cores; still 64 beams and three cameras; vehicles only.
     "tiny": SyntheticConfig(
         name="tiny",
         num_frames=10,
+        num_pedestrians=0,
+        num_cyclists=0,
         cameras=CameraRigConfig(image_width=128, image_height=80, supersample=1),
         lidar=LidarConfig(azimuth_steps=256),
     ),
@@ -110,21 +118,38 @@ PRESETS: dict[str, SyntheticConfig] = {
     "bench": SyntheticConfig(
         name="bench",
         num_frames=60,
+        num_pedestrians=4,
+        num_cyclists=2,
         cameras=CameraRigConfig(image_width=640, image_height=384),
         lidar=LidarConfig(azimuth_steps=1800),
     ),
 }
 
 
+MAX_PEDESTRIANS = 12
+"""Most pedestrians a street holds (beyond this, free places along the sidewalks run short)."""
+MAX_CYCLISTS = 6
+"""Most cyclists a street holds (the lanes also carry the vehicles)."""
+
+
 def get_preset(preset: str | SyntheticConfig) -> SyntheticConfig:
     """The configuration for a preset name, or `preset` itself if it already is a configuration."""
     if isinstance(preset, SyntheticConfig):
+        check_config(preset)
         return preset
     if preset not in PRESETS:
         raise IDSplatError(
             f"unknown synthetic preset {preset!r}: choose one of {', '.join(sorted(PRESETS))}"
         )
     return PRESETS[preset]
+
+
+def check_config(config: SyntheticConfig) -> None:
+    """Range checks of the options a user sets (counts of road users)."""
+    if not 0 <= config.num_pedestrians <= MAX_PEDESTRIANS:
+        raise IDSplatError(f"num_pedestrians={config.num_pedestrians}: choose 0 to {MAX_PEDESTRIANS} (--pedestrians)")
+    if not 0 <= config.num_cyclists <= MAX_CYCLISTS:
+        raise IDSplatError(f"num_cyclists={config.num_cyclists}: choose 0 to {MAX_CYCLISTS} (--cyclists)")
 
 
 def config_to_dict(config: SyntheticConfig) -> dict:

@@ -27,8 +27,9 @@ from idsplat_ns.data.images import write_instance_map
 from idsplat_ns.errors import IDSplatError
 
 GENERATOR_NAME = "idsplat_ns.data.synthetic"
-GENERATOR_VERSION = 1
-"""Bump when the output for a given (config, seed) changes, so that caches are remade."""
+GENERATOR_VERSION = 2
+"""Bump when the output for a given (config, seed) changes, so that caches are remade.
+2: pedestrians and cyclists (`num_pedestrians`, `num_cyclists`)."""
 
 
 def sequence_name(config: SyntheticConfig, seed: int) -> str:
@@ -60,17 +61,22 @@ def _frame_rng(seed: int, frame: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence([seed, frame, 0x11DA]))
 
 
-def vehicle_cuboids(world: World, t: float) -> list[dict]:
-    """Devkit cuboid rows of the vehicles within lidar range of the ego at local time `t`."""
+def road_user_cuboids(world: World, t: float) -> list[dict]:
+    """Devkit cuboid rows of the vehicles and people within lidar range of the ego at local time `t`.
+
+    A box stands on the ground under its object (the sidewalk for pedestrians on it) and holds the
+    whole body, swinging limbs included.
+    """
     rows = []
     ego_xy, _ = world.ego.pose(np.array([t]))
     world_yaw = np.radians(world.config.world_yaw_deg)
-    for obj in world.vehicles:
+    for obj in world.road_users:
         xy, heading = obj.trajectory.pose(np.array([t]))
         if np.linalg.norm(xy[0] - ego_xy[0]) > world.config.lidar.max_range:
             continue
         width, length, height = obj.dimensions
-        centre = world.points_to_world(np.array([[xy[0, 0], xy[0, 1], height / 2]]))[0]
+        base = obj.trajectory.height(np.array([t]))[0]
+        centre = world.points_to_world(np.array([[xy[0, 0], xy[0, 1], base + height / 2]]))[0]
         # PandaSet yaw: 0 = length axis along world +y, counter-clockwise.
         yaw = float(np.mod(heading[0] + world_yaw - np.pi / 2 + np.pi, 2 * np.pi) - np.pi)
         rows.append(
@@ -89,9 +95,9 @@ def vehicle_cuboids(world: World, t: float) -> list[dict]:
                 "attributes.object_motion": "Moving" if obj.moving else "Parked",
                 "cuboids.sibling_id": "-",
                 "cuboids.sensor_id": -1,
-                "attributes.rider_status": np.nan,
-                "attributes.pedestrian_behavior": np.nan,
-                "attributes.pedestrian_age": np.nan,
+                "attributes.rider_status": obj.attributes.get("attributes.rider_status", np.nan),
+                "attributes.pedestrian_behavior": obj.attributes.get("attributes.pedestrian_behavior", np.nan),
+                "attributes.pedestrian_age": obj.attributes.get("attributes.pedestrian_age", np.nan),
             }
         )
     return rows
@@ -136,7 +142,7 @@ def _make_frame(k: int) -> dict:
     rot, pos = lidar_pose(world, np.array([t]))
     out["lidar"] = writer.pose_dict(world.local_to_world_rotation @ rot[0], world.points_to_world(pos)[0])
     writer.write_pickle_gz(
-        tmp / "annotations" / "cuboids" / f"{name}.pkl.gz", writer.cuboid_frame(vehicle_cuboids(world, t))
+        tmp / "annotations" / "cuboids" / f"{name}.pkl.gz", writer.cuboid_frame(road_user_cuboids(world, t))
     )
     out["time"] = cfg.start_time + t
     out["gps"] = _gps(world, t)
@@ -262,10 +268,10 @@ def _write_sequence_files(config: SyntheticConfig, seed: int, tmp: Path, frames:
     writer.write_json(tmp / "meta" / "timestamps.json", [f["time"] for f in frames])
     writer.write_json(tmp / "meta" / "gps.json", [f["gps"] for f in frames])
     instances = {
-        str(v.instance_id): {"uuid": v.uuid, "label": v.label, "moving": v.moving} for v in world.vehicles
+        str(v.instance_id): {"uuid": v.uuid, "label": v.label, "moving": v.moving} for v in world.road_users
     }
     writer.write_json(tmp / "idsplat_extras" / "instances.json", instances)
     writer.write_json(tmp / "idsplat_extras" / "generator.json", record)
 
 
-__all__ = ["generate_sequence", "is_current", "sequence_name", "vehicle_cuboids", "GENERATOR_VERSION"]
+__all__ = ["generate_sequence", "is_current", "sequence_name", "road_user_cuboids", "GENERATOR_VERSION"]

@@ -16,8 +16,12 @@ WHEEL = 8  # tyre and rim
 BUS_BODY = 9  # bus: one box with window band, doors, lights
 TRUNK = 10  # tree trunk
 FOLIAGE = 11  # tree crown
+PERSON_CLOTH = 12  # clothes of people; arms end in a hand, lower legs in a shoe (by part style)
+PERSON_SKIN = 13  # head: face and hair
+BIKE_FRAME = 14  # bicycle tubes, bars, saddle, cranks, pedals
+BIKE_WHEEL = 15  # bicycle wheel: tyre, rim, spokes (a solid disc)
 
-NUM_MATERIALS = 12
+NUM_MATERIALS = 16
 
 # Base lidar reflectivity (0..255) per material; textures refine it (lane paint, plates, lights).
 BASE_REFLECTIVITY = np.array(
@@ -34,5 +38,9 @@ BASE_REFLECTIVITY = np.array(
         60.0,  # BUS_BODY
         25.0,  # TRUNK
         20.0,  # FOLIAGE
+        40.0,  # PERSON_CLOTH (textures scale it with the colour)
+        35.0,  # PERSON_SKIN
+        60.0,  # BIKE_FRAME
+        8.0,  # BIKE_WHEEL
     ]
 )

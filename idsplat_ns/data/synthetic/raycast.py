@@ -1,8 +1,9 @@
 """Vectorised ray casting against the analytic parts of a `World` (numpy, no per-ray loops).
 
 Rays carry their own time, so a lidar ray fired late in a sweep meets a moving car where the car
-is at that instant. Objects are culled per chunk of rays with a cone test against each object's
-bounding sphere (one matrix product), then only candidate rays are tested exactly.
+is at that instant, and a walker's leg where it has swung to. Objects are culled per chunk of rays
+with a cone test against each object's bounding sphere (one matrix product), then only candidate
+rays are tested exactly.
 """
 
 from __future__ import annotations
@@ -177,7 +178,7 @@ class RayCaster:
         for oi, obj in enumerate(world.objects):
             if oi == 0:
                 continue
-            if obj.trajectory is not None and not isinstance(obj.trajectory, Stationary):
+            if obj.trajectory is not None and (not isinstance(obj.trajectory, Stationary) or obj.articulated):
                 self.dynamic.append(oi)
                 continue
             if obj.trajectory is None:
@@ -213,7 +214,7 @@ class RayCaster:
         if traj is None:
             return np.zeros(len(t)), np.zeros((len(t), 3))
         xy, heading = traj.pose(t)
-        return heading, np.concatenate([xy, np.zeros((len(t), 1))], 1)
+        return heading, np.concatenate([xy, traj.height(t)[:, None]], 1)
 
     def _dynamic_bounds(self, t_lo: float, t_hi: float) -> tuple[np.ndarray, np.ndarray]:
         """Street-frame spheres [D, 3], [D] holding each moving object over [t_lo, t_hi]."""
@@ -311,8 +312,13 @@ class RayCaster:
             d_g = np.einsum("nji,nj->ni", rot_t, d[idx])
             for pid in self.object_parts[oi]:
                 p = self.parts[pid]
-                o_p = (o_g - p.center) @ p.rotation
-                d_p = d_g @ p.rotation
+                if p.motion is None:
+                    o_p = (o_g - p.center) @ p.rotation
+                    d_p = d_g @ p.rotation
+                else:  # a limb, crank or wheel: its pose in the object at each ray's time
+                    centre, rot = p.motion.pose(t[idx])
+                    o_p = np.einsum("nji,nj->ni", rot, o_g - centre)
+                    d_p = np.einsum("nji,nj->ni", rot, d_g)
                 dist, n_p = _intersect(p.kind, o_p, d_p, p.size)
                 update(idx, dist, pid, o_p, d_p, n_p)
 
@@ -330,6 +336,12 @@ class RayCaster:
             if len(rows) == 0:
                 continue
             n_obj = np.einsum("nij,nj->ni", self.part_rotation[out.part[rows]], out.normal_part[rows])
+            for pid in self.object_parts[oi]:  # parts that move in the object: their rotation at each time
+                motion = self.parts[pid].motion
+                sub = np.flatnonzero(out.part[rows] == pid) if motion is not None else np.zeros(0, int)
+                if len(sub):
+                    _, rot = motion.pose(t[rows[sub]])
+                    n_obj[sub] = np.einsum("nij,nj->ni", rot, out.normal_part[rows[sub]])
             heading, _ = self.object_pose(oi, t[rows])
             out.normal[rows] = np.einsum("nij,nj->ni", yaw_matrix(heading), n_obj)
 

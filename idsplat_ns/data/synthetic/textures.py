@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from idsplat_ns.data.synthetic import materials as mat
+from idsplat_ns.data.synthetic.people import HAIR_COLORS, ROLE_HAND, ROLE_SHOE, SKIN_TONES
 from idsplat_ns.data.synthetic.world import StreetLayout
 
 _M1, _M2 = np.uint64(0xFF51AFD7ED558CCD), np.uint64(0xC4CEB9FE1A85EC53)
@@ -320,6 +321,39 @@ def pole(p: np.ndarray, color: np.ndarray, s: Surface) -> None:
     s.reflectivity[:] = 70.0
 
 
+def cloth(q: np.ndarray, half: np.ndarray, color: np.ndarray, style: np.ndarray, s: Surface) -> None:
+    """Clothes with a woven grain; a lower leg ends in a dark shoe, an arm in a hand (part z runs to the end)."""
+    alb = color * (0.9 + 0.2 * fbm(q * 25.0, 111))[:, None]
+    end = q[:, 2] > half[:, 2] - 0.075
+    shoe = end & ((style & 3) == ROLE_SHOE)
+    hand = end & ((style & 3) == ROLE_HAND)
+    alb = np.where(shoe[:, None], np.array([0.07, 0.06, 0.06]), alb)
+    alb = np.where(hand[:, None], SKIN_TONES[np.clip(style >> 2, 0, len(SKIN_TONES) - 1)], alb)
+    s.albedo[:] = alb
+    s.reflectivity[:] = np.where(shoe, 10.0, np.where(hand, 35.0, 15.0 + 60.0 * color.mean(1)))
+
+
+def head(q: np.ndarray, n_part: np.ndarray, color: np.ndarray, style: np.ndarray, s: Surface) -> None:
+    """Face in the skin colour, hair on top and at the back (part x is forward)."""
+    hair = (n_part[:, 2] > 0.35) | ((n_part[:, 0] < -0.3) & (n_part[:, 2] > -0.45))
+    hair_col = HAIR_COLORS[np.clip(style >> 2, 0, len(HAIR_COLORS) - 1)] * (0.85 + 0.3 * fbm(q * 40.0, 121))[:, None]
+    s.albedo[:] = np.where(hair[:, None], hair_col, color)
+    s.reflectivity[:] = np.where(hair, 15.0, 35.0)
+
+
+def bike_wheel(q: np.ndarray, n_part: np.ndarray, half: np.ndarray, s: Surface) -> None:
+    """Bicycle wheel seen as a disc: black tyre, silver rim, spokes over a dark hub area."""
+    rho = np.hypot(q[:, 0], q[:, 1]) / half[:, 0]
+    angle = np.arctan2(q[:, 1], q[:, 0])
+    cap = np.abs(n_part[:, 2]) > 0.5
+    rim = cap & _band(rho, 0.82, 0.9)
+    spoke = cap & (rho < 0.82) & ((np.cos(16 * angle) > 0.93) | (rho < 0.12))
+    alb = np.where((rim | spoke)[:, None], np.array([0.62, 0.63, 0.65]), np.array([0.16, 0.16, 0.17]))
+    tyre = ~cap | (rho >= 0.9)
+    s.albedo[:] = np.where(tyre[:, None], np.array([0.04, 0.04, 0.045]), alb)
+    s.reflectivity[:] = np.where(rim | spoke, 60.0, np.where(tyre, 6.0, 15.0))
+
+
 def evaluate(caster, hits, rows: np.ndarray) -> Surface:
     """Texture of hits `rows` [M] of a `RayHits` from `caster` (a `RayCaster`)."""
     s = _surface(len(rows))
@@ -359,6 +393,15 @@ def evaluate(caster, hits, rows: np.ndarray) -> Surface:
             bark(q, color, sub)
         elif m == mat.FOLIAGE:
             foliage(p, color, style, sub)
+        elif m == mat.PERSON_CLOTH:
+            cloth(q, half, color, style, sub)
+        elif m == mat.PERSON_SKIN:
+            head(q, n_p, color, style, sub)
+        elif m == mat.BIKE_FRAME:
+            sub.albedo[:] = color * (0.95 + 0.1 * value_noise(q * 30.0, 131))[:, None]
+            sub.reflectivity[:] = 20.0 + 80.0 * color.mean(1)
+        elif m == mat.BIKE_WHEEL:
+            bike_wheel(q, n_p, half, sub)
         else:
             raise ValueError(f"unknown material {m}")
         s.albedo[sel] = sub.albedo

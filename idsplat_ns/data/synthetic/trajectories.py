@@ -2,6 +2,8 @@
 
 A trajectory maps times to a ground position and a heading: `pose(t) -> (xy [N, 2], heading [N])`.
 The heading is the direction of the object's forward (+x) axis, counter-clockwise from local +x.
+`height(t) -> [N]` is the height of the ground under the object (0 on the road; pedestrians on
+the raised sidewalks have their own trajectory, `people.FootPath`).
 """
 
 from __future__ import annotations
@@ -34,6 +36,10 @@ class Stationary:
         xy = np.broadcast_to(np.array([self.x, self.y]), t.shape + (2,)).copy()
         return xy, np.full(t.shape, self.heading)
 
+    def height(self, t: np.ndarray) -> np.ndarray:
+        """Height [N] of the object's footprint above the road at times `t` [N]: on the road."""
+        return np.zeros(np.shape(t))
+
 
 @dataclass(frozen=True)
 class Straight:
@@ -53,6 +59,10 @@ class Straight:
         t = np.asarray(t, dtype=np.float64)
         xy = np.array([self.x0, self.y0]) + (self.speed * t)[..., None] * _unit(self.heading)
         return xy, np.full(t.shape, self.heading)
+
+    def height(self, t: np.ndarray) -> np.ndarray:
+        """Height [N] of the object's footprint above the road at times `t` [N]: on the road."""
+        return np.zeros(np.shape(t))
 
 
 @dataclass(frozen=True)
@@ -109,6 +119,10 @@ class StraightArcStraight:
             np.where((s > self.lead_in + self.arc_length)[..., None], after, on_arc),
         )
         return xy, heading
+
+    def height(self, t: np.ndarray) -> np.ndarray:
+        """Height [N] of the object's footprint above the road at times `t` [N]: on the road."""
+        return np.zeros(np.shape(t))
 
 
 Trajectory = Stationary | Straight | StraightArcStraight

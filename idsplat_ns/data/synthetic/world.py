@@ -5,13 +5,15 @@ along local +x, the ego drives along it in the right lane, and a side street joi
 (+y side). `World.local_to_world` places that frame on Earth (large UTM-like offset and a yaw).
 
 Shapes are analytic parts (boxes, vertical-axis cylinders, ellipsoids) grouped into objects; an
-object is static or follows a trajectory (vehicles). Object 0 is the ground plane.
+object is static or follows a trajectory (vehicles, people). Parts of people also move inside their
+object (`Part.motion`: limbs, cranks, wheels; see `people.py`). Object 0 is the ground plane.
 """
 
 from __future__ import annotations
 
 import uuid
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 
@@ -26,6 +28,14 @@ from idsplat_ns.data.synthetic.trajectories import (
 
 PLANE, BOX, CYLINDER, ELLIPSOID = 0, 1, 2, 3
 """Part kinds. Cylinders have their axis along the part's z; ellipsoids are axis aligned."""
+
+
+class PartMotion(Protocol):
+    """Pose of a part in its object's frame over time (a swinging limb, a turning crank)."""
+
+    def pose(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Centre [N, 3] and object-from-part rotation [N, 3, 3] at times `t` [N]."""
+        ...
 
 
 @dataclass
@@ -46,11 +56,13 @@ class Part:
     """Base colour, linear-ish RGB in [0, 1]."""
     style: int = 0
     """Texture variant (facade style, hash seed of a window pattern, ...)."""
+    motion: PartMotion | None = None
+    """Pose in the object frame over time; None for parts fixed in their object (`center`, `rotation`)."""
 
 
 @dataclass
 class SceneObject:
-    """A rigid group of parts; vehicles are instances with cuboid ground truth."""
+    """A group of parts; vehicles and people are instances with cuboid ground truth."""
 
     name: str
     """Readable name (`building_3`, `parked_car_0`, `turning_car`)."""
@@ -59,18 +71,29 @@ class SceneObject:
     trajectory: Trajectory | None = None
     """Pose over time in the local frame; None for the static street."""
     instance_id: int = 0
-    """0 for background, k >= 1 for vehicles (the value in the instance masks)."""
+    """0 for background, k >= 1 for vehicles and people (the value in the instance masks)."""
     label: str = ""
-    """PandaSet cuboid label of a vehicle ("Car", "Pickup Truck", "Bus")."""
+    """PandaSet cuboid label ("Car", "Pickup Truck", "Bus", "Pedestrian", "Bicycle")."""
     moving: bool = False
-    """True for vehicles that move during the sequence."""
+    """True for road users that move during the sequence."""
     dimensions: tuple[float, float, float] | None = None
-    """Vehicle (width, length, height): the cuboid size."""
+    """(width, length, height) of the cuboid; it stands on the ground, centred on the object origin in
+    x and y, and holds every part at every time (moving limbs included)."""
     uuid: str = ""
     """Track id in the cuboid annotations."""
+    attributes: dict[str, str] = field(default_factory=dict)
+    """Extra cuboid columns (`attributes.pedestrian_behavior`, `attributes.rider_status`, ...)."""
+
+    @property
+    def articulated(self) -> bool:
+        """Whether some part moves inside the object (then it is not a rigid body)."""
+        return any(part.motion is not None for part in self.parts)
 
     def bounding_sphere(self) -> tuple[np.ndarray, float]:
-        """Centre [3] (object frame) and radius of a sphere that holds every part."""
+        """Centre [3] (object frame) and radius of a sphere that holds every part (at every time)."""
+        if self.articulated:  # moving parts: the cuboid holds them at every time
+            width, length, height = self.dimensions
+            return np.array([0.0, 0.0, height / 2]), float(np.linalg.norm([length / 2, width / 2, height / 2]))
         corners = []
         for part in self.parts:
             signs = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1], indexing="ij")).reshape(3, -1).T
@@ -134,9 +157,14 @@ class World:
     """World position of the local origin (float64)."""
 
     @property
-    def vehicles(self) -> list[SceneObject]:
-        """Objects with an instance id, in instance-id order."""
+    def road_users(self) -> list[SceneObject]:
+        """Objects with an instance id (vehicles, pedestrians, cyclists), in instance-id order."""
         return sorted((o for o in self.objects if o.instance_id > 0), key=lambda o: o.instance_id)
+
+    @property
+    def vehicles(self) -> list[SceneObject]:
+        """The vehicles among the road users, in instance-id order."""
+        return [o for o in self.road_users if o.label in VEHICLE_SIZES]
 
     def points_to_world(self, points: np.ndarray) -> np.ndarray:
         """Local points [N, 3] to world points [N, 3] (float64)."""
@@ -426,7 +454,13 @@ def _vehicles(rng: np.random.Generator, layout: StreetLayout, config: SyntheticC
 
 
 def build_world(config: SyntheticConfig, seed: int) -> World:
-    """The street for `config`, varied by `seed` (building sizes and colours, furniture, car colours)."""
+    """The street for `config`, varied by `seed` (building sizes and colours, furniture, car colours).
+
+    People are drawn from their own random stream, so the street and its vehicles are the same
+    with or without them.
+    """
+    from idsplat_ns.data.synthetic.people_placement import place_people  # builds on this module
+
     rng = np.random.default_rng(np.random.SeedSequence([seed, 0x5717]))
     layout = StreetLayout()
     ego = Straight(0.0, -1.5 * layout.lane_width, 0.0, config.ego_speed)
@@ -435,7 +469,10 @@ def build_world(config: SyntheticConfig, seed: int) -> World:
     objects += _sidewalks(layout)
     objects += _buildings(rng, layout)
     objects += _street_furniture(rng, layout)
-    objects += _vehicles(rng, layout, config, ego)
+    vehicles = _vehicles(rng, layout, config, ego)
+    objects += vehicles
+    people_rng = np.random.default_rng(np.random.SeedSequence([seed, 0x9E0F1E]))
+    objects += place_people(people_rng, layout, config, ego, vehicles, first_id=len(vehicles) + 1)
     sun_el, sun_az = np.radians(38.0), np.radians(115.0 + rng.uniform(-20, 20))
     sun = np.array([np.cos(sun_el) * np.cos(sun_az), np.cos(sun_el) * np.sin(sun_az), np.sin(sun_el)])
     return World(
