@@ -77,7 +77,23 @@ def _idsplat_export(args):
     return parse_args(args)
 
 
+def _idsplat_batch(args):
+    from idsplat_ns.batch.cli import parse_args
+
+    # The batch's own options are checked by its parser; the rest must be valid ns-train options.
+    batch, user = parse_args(args)
+    return _ns_train([batch.method, *user.method_args, user.dataparser, "--data", "x", *user.dataparser_args])
+
+
+def _idsplat_export_onnx(args):
+    from idsplat_ns.instances.export_onnx.cli import parse_args
+
+    return parse_args(args)
+
+
 PARSERS = {
+    "idsplat-export-onnx": _idsplat_export_onnx,
+    "idsplat-batch": _idsplat_batch,
     "idsplat-edit": _idsplat_edit,
     "idsplat-export": _idsplat_export,
     "ns-train": _ns_train,

@@ -1,0 +1,223 @@
+"""idsplat-batch (issue 23): three tiny streets through Ray, one of them corrupted; a re-run skips
+what is done; a batch killed during a training resumes it when run again.
+
+Each batch runs as its own process (``idsplat-batch``, which starts its own local Ray), as a
+user runs it; the streets are ``tiny`` and train 5 steps, so a sequence takes about half a minute.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from idsplat_ns.batch.commands import split_user_options, train_command, preprocess_command
+from idsplat_ns.batch.layout import SequencePaths, checkpoint_step, latest_checkpoint
+from idsplat_ns.batch.sequences import Sequence, parse_sequence_file
+from idsplat_ns.errors import IDSplatError
+
+METHOD = "idsplat-fast"
+# The smallest model that trains: few steps, few initial Gaussians.
+SMALL = ["--pipeline.model.num-random-points", "2000", "--pipeline.model.max-lidar-points", "8000"]
+
+
+def _bin(name: str) -> str:
+    return str(Path(sys.executable).with_name(name))
+
+
+def _batch(seq_file: Path, out: Path, *extra: str, timeout: float = 600) -> tuple[subprocess.CompletedProcess, float]:
+    cmd = [_bin("idsplat-batch"), "--sequences", str(seq_file), "--output-dir", str(out), "--method", METHOD,
+           "--num-cpus", "2", *extra, *SMALL]
+    start = time.perf_counter()
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env={**os.environ, "COLUMNS": "200"})
+    return done, time.perf_counter() - start
+
+
+@pytest.fixture(scope="module")
+def streets(tiny_street: Path, tmp_path_factory) -> dict[str, Path]:
+    """Two good tiny streets (seeds 0 and 1) and one whose front camera poses are not JSON."""
+    root = tmp_path_factory.mktemp("batch_streets")
+    subprocess.run([_bin("idsplat-synth"), "--preset", "tiny", "--seed", "1", "--out", str(root), "--quiet"],
+                   check=True, capture_output=True, timeout=300)
+    broken = root / "broken"
+    shutil.copytree(tiny_street, broken)  # a copy: own name, own cache, own failure
+    (broken / "camera" / "front_camera" / "poses.json").write_text("{ not json")
+    return {"synth_tiny_0": Path(tiny_street), "synth_tiny_1": root / "synth_tiny_1", "broken": broken}
+
+
+@pytest.fixture(scope="module")
+def first_batch(streets: dict[str, Path], tmp_path_factory):
+    """The batch run once over the three streets: (list file, output folder, result, seconds)."""
+    root = tmp_path_factory.mktemp("batch")
+    seq_file = root / "sequences.txt"
+    seq_file.write_text("# three streets, one broken\n" + "\n".join(str(p) for p in streets.values()) + "\n")
+    out = root / "out"
+    done, seconds = _batch(seq_file, out, "--max-num-iterations", "5")
+    return seq_file, out, done, seconds
+
+
+def _csv_rows(path: Path) -> list[dict]:
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def test_failure_is_isolated_and_the_table_has_the_others(first_batch, streets) -> None:
+    _, out, done, _ = first_batch
+    assert done.returncode == 1, done.stdout[-3000:] + done.stderr[-3000:]  # one sequence failed
+    # The broken one is reported with its reader's one-line error, naming the file.
+    status = json.loads((out / "broken" / METHOD / "status.json").read_text())
+    assert status["state"] == "failed" and status["step"] == "preprocess"
+    assert "front_camera/poses.json" in status["error"] and "\n" not in status["error"]
+    assert f"broken: FAILED at preprocess" in done.stdout and "front_camera/poses.json" in done.stdout
+    assert not (out / "broken" / METHOD / "eval.json").exists()
+    # The others trained, were evaluated and are in the table, with the mean of the two.
+    rows = _csv_rows(out / f"{METHOD}_results.csv")
+    assert [r["sequence"] for r in rows] == ["synth_tiny_0", "synth_tiny_1", "mean (2)"]
+    psnr = []
+    for name in ("synth_tiny_0", "synth_tiny_1"):
+        results = json.loads((out / name / METHOD / "eval.json").read_text())["results"]
+        row = next(r for r in rows if r["sequence"] == name)
+        assert float(row["psnr"]) == pytest.approx(results["psnr"])
+        assert float(row["dpsnr"]) == pytest.approx(results["dpsnr"])
+        assert 5.0 < results["psnr"] < 40.0
+        psnr.append(results["psnr"])
+        ckpt = latest_checkpoint(SequencePaths(out, name, METHOD))
+        assert ckpt is not None and checkpoint_step(ckpt) == 4  # 5 steps: 0..4
+        for step in ("preprocess", "train", "eval"):
+            assert (out / name / METHOD / f"{step}.log").stat().st_size > 0
+    assert float(rows[-1]["psnr"]) == pytest.approx(sum(psnr) / 2)
+    assert "lpips" not in rows[0]  # no backbone weights: the column is left out, not zero
+    assert (out / f"{METHOD}_dpsnr.png").stat().st_size > 1000
+    assert "PSNR" in done.stdout and "mean (2)" in done.stdout  # the printed table
+
+
+def test_rerun_skips_the_finished_sequences(first_batch) -> None:
+    seq_file, out, _, first_seconds = first_batch
+    logs = {n: (out / n / METHOD / "train.log").stat().st_mtime_ns for n in ("synth_tiny_0", "synth_tiny_1")}
+    before = (out / "batch.log").read_text()
+    done, seconds = _batch(seq_file, out, "--max-num-iterations", "5")
+    assert done.returncode == 1  # the broken street is tried again, and fails again
+    new = (out / "batch.log").read_text()[len(before):]
+    for name in ("synth_tiny_0", "synth_tiny_1"):
+        assert f"{name}: skipped, already evaluated" in new
+        assert f"{name}: training" not in new and f"{name}: preprocessing" not in new
+        assert (out / name / METHOD / "train.log").stat().st_mtime_ns == logs[name]
+    assert "broken: FAILED at preprocess" in new
+    # Two of three sequences cost nothing: the re-run is the broken one's failure and Ray's start.
+    assert seconds < 0.6 * first_seconds, (seconds, first_seconds)
+
+
+def _wait_for(predicate, timeout: float, what: str) -> None:
+    end = time.time() + timeout
+    while time.time() < end:
+        if predicate():
+            return
+        time.sleep(0.1)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+def _processes_mentioning(text: str) -> list[int]:
+    """Live (not zombie) processes whose command line contains ``text``."""
+    found = []
+    for proc in Path("/proc").iterdir():
+        if not proc.name.isdigit():
+            continue
+        try:
+            if (proc / "stat").read_text().split(")")[-1].split()[0] == "Z":
+                continue
+            if text in (proc / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace"):
+                found.append(int(proc.name))
+        except OSError:
+            continue
+    return found
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc to check that no training is left")
+def test_killed_batch_resumes_the_training(streets, tmp_path: Path) -> None:
+    seq_file = tmp_path / "one.txt"
+    seq_file.write_text(f"{streets['synth_tiny_0']}\n")
+    out = tmp_path / "out"
+    steps = ["--max-num-iterations", "30", "--steps-per-save", "3"]
+    cmd = [_bin("idsplat-batch"), "--sequences", str(seq_file), "--output-dir", str(out), "--method", METHOD,
+           "--num-cpus", "2", *steps, *SMALL]
+    paths = SequencePaths(out, "synth_tiny_0", METHOD)
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        _wait_for(lambda: latest_checkpoint(paths) is not None or proc.poll() is not None, 300, "a checkpoint")
+        assert proc.poll() is None, "the batch ended before it could be killed"
+        os.kill(proc.pid, signal.SIGKILL)  # the driver only: Ray and the training must go with it
+        proc.wait()
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    killed_at = checkpoint_step(latest_checkpoint(paths))
+    assert killed_at < 29
+    _wait_for(lambda: not _processes_mentioning(str(out)), 30, "the killed batch's training to end")
+
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=600, env={**os.environ, "COLUMNS": "200"})
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    log = (out / "batch.log").read_text()
+    rerun = log[log.rindex("synth_tiny_0: training"):]
+    assert "resume from step" in rerun and "preprocessing" not in rerun
+    assert "Resuming from" in paths.log("train").read_text()
+    assert checkpoint_step(latest_checkpoint(paths)) == 29  # the run's 30 steps in all, not 30 more
+    assert json.loads(paths.eval_json.read_text())["results"]["psnr"] > 5.0
+
+
+def test_sequence_file_and_commands(tmp_path: Path) -> None:
+    (tmp_path / "a").mkdir()
+    listing = tmp_path / "list.txt"
+    listing.write_text("# comment\n\na   pandaset-10\n/data/waymo streetgs --segment segment-123_with_camera_labels\n"
+                       "a - --cameras front_camera\n")
+    seqs = parse_sequence_file(listing)
+    assert [s.name for s in seqs] == ["a", "123", "a-2"]
+    assert seqs[0].data == tmp_path / "a" and seqs[0].protocol == "pandaset-10"
+    assert seqs[2].protocol is None and seqs[2].dataparser_args == ("--cameras", "front_camera")
+    listing.write_text("a bogus-protocol\n")
+    with pytest.raises(IDSplatError, match="line 1: unknown protocol 'bogus-protocol'"):
+        parse_sequence_file(listing)
+
+    user = split_user_options(["--max-num-iterations", "5", "--pipeline.datamanager.preprocess.masks.kind",
+                               "ground-truth", "idsplat-auto", "--cameras", "front_camera", "--downscale-factor", "2"])
+    seq = Sequence("a", Path("/d/a"), "pandaset-10")
+    train = train_command(seq, METHOD, user, Path("/o"))
+    assert train[:8] == ["ns-train", METHOD, "--output-dir", "/o", "--experiment-name", "a", "--timestamp", "run"]
+    assert train[train.index("idsplat-auto"):] == ["idsplat-auto", "--data", "/d/a", "--protocol", "pandaset-10",
+                                                  "--cameras", "front_camera", "--downscale-factor", "2"]
+    pre = preprocess_command(seq, user)
+    assert pre == ["idsplat-preprocess", "--instance-mode", "self-supervised", "--preprocess.masks.kind", "ground-truth",
+                   "--data", "/d/a", "--protocol", "pandaset-10", "--cameras", "front_camera"]
+    assert preprocess_command(seq, split_user_options(["--pipeline.datamanager.instance-mode", "static"])) is None
+    with pytest.raises(IDSplatError, match="--output-dir: set by idsplat-batch"):
+        split_user_options(["--output-dir", "x"])
+
+
+def test_bad_invocation_is_one_line(tmp_path: Path) -> None:
+    done = subprocess.run([_bin("idsplat-batch"), "--sequences", str(tmp_path / "none.txt"), "--output-dir",
+                           str(tmp_path / "o")], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"error: --sequences {tmp_path / 'none.txt'}: no such file"), lines
+
+
+def test_one_line_error_of_a_step(tmp_path: Path) -> None:
+    from idsplat_ns.batch.tasks import one_line_error
+
+    log = tmp_path / "step.log"
+    log.write_text("loading\nprogress: 10%\rprogress: 80%\nerror: /d/poses.json: not valid JSON; regenerate it\n")
+    assert one_line_error(log, 2) == "/d/poses.json: not valid JSON; regenerate it"
+    log.write_text("╭─ Config ─╮\n│ a │\n╰──╯\nTraceback (most recent call last):\n  File x\nValueError: bad\n")
+    assert one_line_error(log, 1) == "ValueError: bad"  # an earlier box is not the failure
+    log.write_text("╭─ Unrecognized options ─╮\n│ Unrecognized options: --nope, 1 │\n│ ───── │\n╰───────╯\n")
+    assert one_line_error(log, 2) == "Unrecognized options: --nope, 1"
+    log.write_text("step 12\n")
+    assert one_line_error(log, -9).startswith("killed by SIGKILL (out of memory?")
