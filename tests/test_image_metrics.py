@@ -16,14 +16,28 @@ def test_psnr_closed_form_and_mask():
     assert float(psnr(pred2, gt, ~mask)) == pytest.approx(100.0, abs=1e-3)  # clamped perfect score
 
 
-def test_ssim_matches_torchmetrics():
-    from torchmetrics.functional.image import structural_similarity_index_measure as tm_ssim
+def test_ssim_closed_forms_and_an_interior_pixel_by_hand():
+    import numpy as np
 
+    from idsplat_ns.eval.image_metrics import ssim_map
+
+    c1, c2 = 0.01**2, 0.03**2
+    # Constant images: no variance, SSIM = (2 ab + c1) / (a^2 + b^2 + c1) everywhere.
+    a, b = torch.full((1, 3, 20, 24), 0.3), torch.full((1, 3, 20, 24), 0.5)
+    assert float(ssim(a, b)) == pytest.approx((2 * 0.15 + c1) / (0.09 + 0.25 + c1), abs=1e-5)
     gen = torch.Generator().manual_seed(0)
-    a = torch.rand(2, 3, 40, 50, generator=gen)
-    b = (a + 0.1 * torch.randn(2, 3, 40, 50, generator=gen)).clamp(0, 1)
-    assert float(ssim(a, b)) == pytest.approx(float(tm_ssim(b, a, data_range=1.0)), abs=1e-5)
-    assert float(ssim(a, a)) == pytest.approx(1.0, abs=1e-6)
+    x = torch.rand(1, 1, 30, 30, generator=gen)
+    y = (x + 0.1 * torch.randn(1, 1, 30, 30, generator=gen)).clamp(0, 1)
+    assert float(ssim(x, x)) == pytest.approx(1.0, abs=1e-6)
+    # One pixel far from the border, from the definition: Gaussian-weighted means and (co)variances.
+    k = np.arange(11) - 5.0
+    g = np.exp(-(k**2) / (2 * 1.5**2))
+    w = np.outer(g, g) / np.outer(g, g).sum()
+    px, py = x[0, 0, 10:21, 12:23].double().numpy(), y[0, 0, 10:21, 12:23].double().numpy()
+    mx, my = (w * px).sum(), (w * py).sum()
+    vx, vy, cxy = (w * px * px).sum() - mx**2, (w * py * py).sum() - my**2, (w * px * py).sum() - mx * my
+    expected = (2 * mx * my + c1) * (2 * cxy + c2) / ((mx**2 + my**2 + c1) * (vx + vy + c2))
+    assert float(ssim_map(x, y)[0, 0, 15, 17]) == pytest.approx(expected, abs=1e-5)
 
 
 def test_lpips_matches_reference_package(tmp_path):

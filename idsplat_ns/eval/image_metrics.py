@@ -1,9 +1,8 @@
 """Image metrics: PSNR, SSIM and DPSNR (PSNR inside dynamic-object masks, per class).
 
-SSIM is the standard Wang et al. formulation with an 11x11 Gaussian window (sigma 1.5) and
-reflection padding, averaged over the whole image: the convention of torchmetrics, which
-nerfstudio's evaluation uses, so the numbers compare. Written here so it runs anywhere torch
-runs; it is also the training loss's structural term.
+SSIM is torchmetrics' (Wang et al., 11x11 Gaussian window, sigma 1.5, reflection padding, averaged
+over the whole image), the implementation nerfstudio's evaluation uses, so the numbers compare; it
+is also the training loss's structural term (it is differentiable).
 """
 
 from __future__ import annotations
@@ -11,15 +10,8 @@ from __future__ import annotations
 from typing import Optional
 
 import torch
-import torch.nn.functional as F
 from torch import Tensor
-
-
-def _gaussian_window(size: int, sigma: float, channels: int, like: Tensor) -> Tensor:
-    coords = torch.arange(size, dtype=like.dtype, device=like.device) - (size - 1) / 2
-    g = torch.exp(-(coords**2) / (2 * sigma**2))
-    g = g / g.sum()
-    return (g[:, None] * g[None, :]).expand(channels, 1, size, size).contiguous()
+from torchmetrics.functional.image import structural_similarity_index_measure
 
 
 def ssim_map(
@@ -29,18 +21,11 @@ def ssim_map(
     sigma: float = 1.5,
 ) -> Tensor:  # [B, C, H, W]
     """Per-pixel SSIM with reflection padding."""
-    c = img1.shape[1]
-    win = _gaussian_window(window_size, sigma, c, img1)
-    pad = (window_size - 1) // 2
-    img1 = F.pad(img1, (pad, pad, pad, pad), mode="reflect")
-    img2 = F.pad(img2, (pad, pad, pad, pad), mode="reflect")
-    mu1 = F.conv2d(img1, win, groups=c)
-    mu2 = F.conv2d(img2, win, groups=c)
-    s11 = (F.conv2d(img1 * img1, win, groups=c) - mu1**2).clamp(min=0)
-    s22 = (F.conv2d(img2 * img2, win, groups=c) - mu2**2).clamp(min=0)
-    s12 = F.conv2d(img1 * img2, win, groups=c) - mu1 * mu2
-    c1, c2 = 0.01**2, 0.03**2
-    return ((2 * mu1 * mu2 + c1) * (2 * s12 + c2)) / ((mu1**2 + mu2**2 + c1) * (s11 + s22 + c2))
+    _, full = structural_similarity_index_measure(
+        img1, img2, gaussian_kernel=True, sigma=sigma, kernel_size=window_size, data_range=1.0,
+        reduction="none", return_full_image=True,
+    )
+    return full
 
 
 def ssim(img1: Tensor, img2: Tensor) -> Tensor:
