@@ -58,3 +58,48 @@ def test_position_errors_pair_each_prediction_with_its_nearest_track():
     assert list(frames) == [0, 1, 2, 3]
     np.testing.assert_allclose(err, [0.5, 0.5, 10.0, 0.5])
     assert position_errors({}, pred) == {}
+
+
+def test_range_error_bins_hold_the_medians_and_counts_of_their_rays():
+    from idsplat_ns.eval.lidar_metrics import range_error_by_distance
+
+    ranges = np.array([1.0, 2.0, 9.9, 10.0, 25.0, 25.0, 25.0, 41.0])
+    errors = np.array([0.1, 0.3, 0.2, 1.0, 2.0, 4.0, 6.0, 0.5])
+    bins = range_error_by_distance(ranges, errors, bin_width=10.0)
+    np.testing.assert_array_equal(bins["edges"], [0, 10, 20, 30, 40, 50])
+    np.testing.assert_array_equal(bins["count"], [3, 1, 3, 0, 1])
+    np.testing.assert_allclose(bins["median"][[0, 1, 2, 4]], [0.2, 1.0, 4.0, 0.5])
+    np.testing.assert_allclose(bins["p25"][2], 3.0)  # numpy's linear percentile of 2, 4, 6
+    assert np.isnan(bins["median"][3]) and np.isnan(bins["p75"][3])  # an empty bin is NaN, not 0
+    with pytest.raises(ValueError, match="ranges against"):
+        range_error_by_distance(ranges, errors[:3])
+
+
+def test_lidar_error_plot_is_written_and_refuses_no_rays(tmp_path):
+    from idsplat_ns.errors import IDSplatError
+    from idsplat_ns.eval.metric_plots import plot_lidar_error_by_range
+
+    rng = np.random.default_rng(0)
+    ranges = rng.uniform(2, 80, 2000)
+    path = plot_lidar_error_by_range(ranges, 0.01 * ranges * rng.uniform(0.5, 1.5, 2000), tmp_path / "l.png", "t")
+    img = np.asarray(Image.open(path).convert("L"), float)
+    assert img.shape[1] > 400 and (img < 128).sum() > 2000
+    with pytest.raises(IDSplatError, match="no returned lidar rays"):
+        plot_lidar_error_by_range(np.zeros(0), np.zeros(0), tmp_path / "none.png")
+
+
+def test_sweep_range_errors_take_the_depth_metric_rays():
+    import torch
+
+    from idsplat_ns.model.lidar_supervision import SweepRender, sweep_range_errors
+
+    class Rays:  # the fields of LidarRayBatch that the errors read
+        returned = torch.tensor([True, True, False, True])
+        ranges = torch.tensor([10.0, 20.0, 0.0, 30.0])
+
+    render = SweepRender(range=np.array([11.0, 19.0, 5.0, 33.0]), range_normalised=np.zeros(4), median_range=np.zeros(4),
+                         intensity=np.zeros(4), ray_drop_prob=np.array([0.1, 0.2, 0.1, 0.9]), alpha=np.ones(4),
+                         points=np.zeros((0, 3)), rays=Rays())
+    gt, err = sweep_range_errors(render, 0.5)  # ray 2: no return in the data; ray 3: predicted dropped
+    np.testing.assert_allclose(gt, [10.0, 20.0])
+    np.testing.assert_allclose(err, [1.0, 1.0])

@@ -85,6 +85,12 @@ def _idsplat_batch(args):
     return _ns_train([batch.method, *user.method_args, user.dataparser, "--data", "x", *user.dataparser_args])
 
 
+def _idsplat_render_drive(args):
+    from idsplat_ns.nerfstudio.drive_video import parse_args
+
+    return parse_args(args)
+
+
 def _idsplat_export_onnx(args):
     from idsplat_ns.instances.export_onnx.cli import parse_args
 
@@ -96,6 +102,7 @@ PARSERS = {
     "idsplat-batch": _idsplat_batch,
     "idsplat-edit": _idsplat_edit,
     "idsplat-export": _idsplat_export,
+    "idsplat-render-drive": _idsplat_render_drive,
     "ns-train": _ns_train,
     "ns-eval": _ns_eval,
     "ns-viewer": _ns_viewer,

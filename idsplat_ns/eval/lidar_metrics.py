@@ -78,3 +78,32 @@ def lidar_metrics(
         "ray_drop_accuracy": acc,
         "chamfer": chamfer_distance(pred_pts, gt_pts),
     }
+
+
+def range_error_by_distance(
+    gt_range: np.ndarray,  # [K] measured range of rays returned in both, metres
+    abs_error: np.ndarray,  # [K] |predicted - measured| range, metres
+    bin_width: float = 10.0,
+) -> dict[str, np.ndarray]:
+    """The absolute range error in bins of measured range ``[0, w), [w, 2w), ...`` up to the
+    farthest ray: ``edges`` [B+1], and per bin ``count``, ``median``, ``p25``, ``p75`` [B]
+    (NaN where a bin is empty). Medians, as the depth metric, so that a few mixed pixels on an
+    edge do not swamp a bin."""
+    gt_range = np.asarray(gt_range, dtype=np.float64).reshape(-1)
+    abs_error = np.asarray(abs_error, dtype=np.float64).reshape(-1)
+    if gt_range.shape != abs_error.shape:
+        raise ValueError(f"range_error_by_distance: {gt_range.shape} ranges against {abs_error.shape} errors")
+    if bin_width <= 0:
+        raise ValueError(f"range_error_by_distance: bin width must be positive, got {bin_width}")
+    keep = np.isfinite(gt_range) & np.isfinite(abs_error)
+    gt_range, abs_error = gt_range[keep], abs_error[keep]
+    top = max(float(gt_range.max()) if gt_range.size else 0.0, 0.0)
+    nbins = max(int(np.floor(top / bin_width)) + 1, 1)
+    edges = np.arange(nbins + 1, dtype=np.float64) * bin_width
+    which = np.minimum((gt_range // bin_width).astype(np.int64), nbins - 1)
+    count = np.bincount(which, minlength=nbins)
+    stats = np.full((3, nbins), np.nan)
+    for b in np.flatnonzero(count):
+        stats[:, b] = np.percentile(abs_error[which == b], [50, 25, 75])
+    return {"edges": edges, "count": count, "median": stats[0], "p25": stats[1], "p75": stats[2]}
+

@@ -191,23 +191,36 @@ def sweep_metrics(render: SweepRender, drop_threshold: float = 0.5, drop_labels:
     return out
 
 
+def sweep_range_errors(render: SweepRender, drop_threshold: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+    """Measured range [K] and absolute range error [K] of the rays that returned in the data and
+    are predicted returned: the ray set of the depth metric."""
+    rays = render.rays
+    both = rays.returned.numpy().astype(bool) & (np.asarray(render.ray_drop_prob) < drop_threshold)
+    gt = rays.ranges.numpy().astype(np.float64)[both]
+    return gt, np.abs(np.asarray(render.range, dtype=np.float64)[both] - gt)
+
+
 def held_out_lidar_metrics(
     scene: Scene,
     sweeps: list[LidarSweep],
     render: Callable[[LidarSweep], SweepRender],
     drop_threshold: float = 0.5,
     advance: Callable[[], None] = lambda: None,
+    on_render: Optional[Callable[[SweepRender], None]] = None,
 ) -> tuple[dict[str, float], Optional[str]]:
     """Lidar metrics averaged over ``sweeps`` (NaN sweeps left out; a metric NaN in every sweep
     is absent), with ``lidar_num_sweeps``; and a one-line note on what the data cannot measure
     (None when everything was measured). ``render`` renders one sweep; ``advance`` is called after
-    each (a progress bar)."""
+    each (a progress bar); ``on_render`` receives each rendered sweep (e.g. to collect errors)."""
     if not sweeps:
         return {}, None
     drop_labels = has_drop_labels(scene.lidar)
     per_sweep = []
     for sweep in sweeps:
-        per_sweep.append(sweep_metrics(render(sweep), drop_threshold, drop_labels))
+        rendered = render(sweep)
+        per_sweep.append(sweep_metrics(rendered, drop_threshold, drop_labels))
+        if on_render is not None:
+            on_render(rendered)
         advance()
     out: dict[str, float] = {}
     for key in per_sweep[0]:

@@ -57,24 +57,27 @@ class IDSplatPipeline(VanillaPipeline):
         frames = frames_of_split(self.datamanager.eval_dataset.metadata)
         return sweeps_of_frames(self.datamanager.scene, frames)
 
-    def _lidar_metrics(self, progress: Progress) -> tuple[dict, Optional[str]]:
+    def _lidar_metrics(self, progress: Progress, range_errors: list) -> tuple[dict, Optional[str]]:
         """Table-2 lidar metrics averaged over the held-out sweeps, and a note on what the data
-        cannot measure (the ray-drop accuracy without drop labels)."""
-        from idsplat_ns.model.lidar_supervision import held_out_lidar_metrics
+        cannot measure (the ray-drop accuracy without drop labels). Appends each sweep's
+        (measured range, absolute error) to ``range_errors`` for the plot."""
+        from idsplat_ns.model.lidar_supervision import held_out_lidar_metrics, sweep_range_errors
 
         sweeps = self._held_out_sweeps()
         if not sweeps:
             return {}, None
         task = progress.add_task("[green]Evaluating held-out lidar sweeps...", total=len(sweeps))
-        return held_out_lidar_metrics(self.datamanager.scene, sweeps, self.model.render_lidar_sweep,
-                                      self.model.config.lidar.drop_threshold, lambda: progress.advance(task))
+        threshold = self.model.config.lidar.drop_threshold
+        return held_out_lidar_metrics(self.datamanager.scene, sweeps, self.model.render_lidar_sweep, threshold,
+                                      lambda: progress.advance(task),
+                                      lambda rendered: range_errors.append(sweep_range_errors(rendered, threshold)))
 
-    def _write_plots(self, folder: Path, per_image: list) -> list[str]:
+    def _write_plots(self, folder: Path, per_image: list, range_errors: list) -> list[str]:
         """Plots of the evaluation (ns-eval with --render-output-path only): the top view of the
         learned trajectories with their IDs, the annotated moving road users and the ego path, each
-        instance's position error over time, and PSNR / DPSNR per held-out image. Ground truth: the
-        annotated moving road users of every class."""
-        from idsplat_ns.eval.metric_plots import plot_per_image
+        instance's position error over time, PSNR / DPSNR per held-out image and the held-out lidar
+        range error by distance. Ground truth: the annotated moving road users of every class."""
+        from idsplat_ns.eval.metric_plots import plot_lidar_error_by_range, plot_per_image
         from idsplat_ns.data.tracks import ROAD_USER_CLASSES
         from idsplat_ns.eval.trajectory_eval import ground_truth_positions, predicted_positions
         from idsplat_ns.eval.trajectory_plots import plot_position_errors, plot_scene_top_view
@@ -91,6 +94,11 @@ class IDSplatPipeline(VanillaPipeline):
             plots.append(plot_position_errors(gt, pred, folder / "plots" / "position_errors.png",
                                               f"{scene.name}: instance position error against the nearest annotated track"))
         plots.append(plot_per_image(per_image, folder / "plots" / "per_image_psnr.png", f"{scene.name}: held-out images"))
+        ranges = np.concatenate([r for r, _ in range_errors]) if range_errors else np.zeros(0)
+        if ranges.size:
+            errors = np.concatenate([e for _, e in range_errors])
+            plots.append(plot_lidar_error_by_range(ranges, errors, folder / "plots" / "lidar_error_by_range.png",
+                                                   f"{scene.name}: held-out lidar sweeps"))
         return [str(p) for p in plots]
 
     def get_average_image_metrics(self, data_loader, image_prefix: str, step: Optional[int] = None,
@@ -113,12 +121,13 @@ class IDSplatPipeline(VanillaPipeline):
                         arr = (image.detach().clamp(0, 1).cpu().numpy() * 255).astype(np.uint8)
                         Image.fromarray(arr).save(output_path / f"{image_prefix}_{key}_{idx:04d}.png")
                 progress.advance(task)
-            lidar, lidar_note = self._lidar_metrics(progress)
+            range_errors: list = []
+            lidar, lidar_note = self._lidar_metrics(progress, range_errors)
         result = average_image_metrics(per_image, get_std)
         result.update(self._tracking_metrics())
         result.update(lidar)
         if output_path is not None and step is None:  # ns-eval writing renders: the plots go beside them
-            result["plots"] = self._write_plots(output_path, per_image)
+            result["plots"] = self._write_plots(output_path, per_image, range_errors)
             CONSOLE.print(f"plots: {', '.join(result['plots'])}")
         if step is None:  # ns-eval's JSON says which protocol and instance source the result belongs to
             meta = self.datamanager.train_dataparser_outputs.metadata

@@ -1,25 +1,24 @@
-"""Fail early, in one line, when ``ns-render`` cannot write its output.
+"""ffmpeg for ``ns-render``, made available before nerfstudio looks for it.
 
 nerfstudio's ``ns-render`` (1.1.5) checks for ffmpeg in every mode, ``--output-format images``
 included, but only after loading the data and the model, and then prints two lines and exits
-with status 1. The model calls :func:`check_render_tools` while it is built, so the same condition
-ends at once with the project's one-line error (``error: ...``, status 2, see
-:mod:`idsplat_ns.errors`). Other commands (``ns-train``, ``ns-eval``, ``ns-viewer``) are not
-affected: they do not need ffmpeg.
+with status 1. The model calls :func:`check_render_tools` while it is built: it puts the ffmpeg
+that the install ships on the PATH when the system has none (:mod:`idsplat_ns._compat.ffmpeg`),
+and a broken install ends at once with the project's one-line error. Other commands
+(``ns-train``, ``ns-eval``, ``ns-viewer``) do not need ffmpeg.
 """
 
 from __future__ import annotations
 
-import shutil
 import sys
 from pathlib import Path
 
-from idsplat_ns.errors import IDSplatError
+from idsplat_ns._compat.ffmpeg import ensure_ffmpeg_on_path
 
 
 def check_render_tools(argv0: str | None = None) -> None:
-    """Raise :class:`IDSplatError` when running as ``ns-render`` and ffmpeg is not on the PATH."""
+    """When running as ``ns-render``, make sure an ``ffmpeg`` is on the PATH (one-line error if
+    none can be had)."""
     program = Path(argv0 if argv0 is not None else (sys.argv[0] if sys.argv else "")).name
-    if program == "ns-render" and shutil.which("ffmpeg") is None:
-        raise IDSplatError("ns-render needs ffmpeg on the PATH (nerfstudio checks for it even with --output-format "
-                           "images); install it (e.g. apt install ffmpeg) and run ns-render again")
+    if program == "ns-render":
+        ensure_ffmpeg_on_path()
