@@ -33,12 +33,10 @@ def _bin(name: str) -> str:
     return str(Path(sys.executable).with_name(name))
 
 
-def _batch(seq_file: Path, out: Path, *extra: str, timeout: float = 600) -> tuple[subprocess.CompletedProcess, float]:
+def _batch(seq_file: Path, out: Path, *extra: str, timeout: float = 600) -> subprocess.CompletedProcess:
     cmd = [_bin("idsplat-batch"), "--sequences", str(seq_file), "--output-dir", str(out), "--method", METHOD,
            "--num-cpus", "2", *extra, *SMALL]
-    start = time.perf_counter()
-    done = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env={**os.environ, "COLUMNS": "200"})
-    return done, time.perf_counter() - start
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env={**os.environ, "COLUMNS": "200"})
 
 
 @pytest.fixture(scope="module")
@@ -55,13 +53,12 @@ def streets(tiny_street: Path, tmp_path_factory) -> dict[str, Path]:
 
 @pytest.fixture(scope="module")
 def first_batch(streets: dict[str, Path], tmp_path_factory):
-    """The batch run once over the three streets: (list file, output folder, result, seconds)."""
+    """The batch run once over the three streets: (list file, output folder, result)."""
     root = tmp_path_factory.mktemp("batch")
     seq_file = root / "sequences.txt"
     seq_file.write_text("# three streets, one broken\n" + "\n".join(str(p) for p in streets.values()) + "\n")
     out = root / "out"
-    done, seconds = _batch(seq_file, out, "--max-num-iterations", "5")
-    return seq_file, out, done, seconds
+    return seq_file, out, _batch(seq_file, out, "--max-num-iterations", "5")
 
 
 def _csv_rows(path: Path) -> list[dict]:
@@ -70,7 +67,7 @@ def _csv_rows(path: Path) -> list[dict]:
 
 
 def test_failure_is_isolated_and_the_table_has_the_others(first_batch, streets) -> None:
-    _, out, done, _ = first_batch
+    _, out, done = first_batch
     assert done.returncode == 1, done.stdout[-3000:] + done.stderr[-3000:]  # one sequence failed
     # The broken one is reported with its reader's one-line error, naming the file.
     status = json.loads((out / "broken" / METHOD / "status.json").read_text())
@@ -100,10 +97,10 @@ def test_failure_is_isolated_and_the_table_has_the_others(first_batch, streets) 
 
 
 def test_rerun_skips_the_finished_sequences(first_batch) -> None:
-    seq_file, out, _, first_seconds = first_batch
+    seq_file, out, _ = first_batch
     logs = {n: (out / n / METHOD / "train.log").stat().st_mtime_ns for n in ("synth_tiny_0", "synth_tiny_1")}
     before = (out / "batch.log").read_text()
-    done, seconds = _batch(seq_file, out, "--max-num-iterations", "5")
+    done = _batch(seq_file, out, "--max-num-iterations", "5")
     assert done.returncode == 1  # the broken street is tried again, and fails again
     new = (out / "batch.log").read_text()[len(before):]
     for name in ("synth_tiny_0", "synth_tiny_1"):
@@ -111,8 +108,6 @@ def test_rerun_skips_the_finished_sequences(first_batch) -> None:
         assert f"{name}: training" not in new and f"{name}: preprocessing" not in new
         assert (out / name / METHOD / "train.log").stat().st_mtime_ns == logs[name]
     assert "broken: FAILED at preprocess" in new
-    # Two of three sequences cost nothing: the re-run is the broken one's failure and Ray's start.
-    assert seconds < 0.6 * first_seconds, (seconds, first_seconds)
 
 
 def _wait_for(predicate, timeout: float, what: str) -> None:
@@ -146,7 +141,7 @@ def test_killed_batch_resumes_the_training(streets, tmp_path: Path) -> None:
     seq_file = tmp_path / "one.txt"
     seq_file.write_text(f"{streets['synth_tiny_0']}\n")
     out = tmp_path / "out"
-    steps = ["--max-num-iterations", "30", "--steps-per-save", "3"]
+    steps = ["--max-num-iterations", "15", "--steps-per-save", "3"]
     cmd = [_bin("idsplat-batch"), "--sequences", str(seq_file), "--output-dir", str(out), "--method", METHOD,
            "--num-cpus", "2", *steps, *SMALL]
     paths = SequencePaths(out, "synth_tiny_0", METHOD)
@@ -160,7 +155,7 @@ def test_killed_batch_resumes_the_training(streets, tmp_path: Path) -> None:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
     killed_at = checkpoint_step(latest_checkpoint(paths))
-    assert killed_at < 29
+    assert killed_at < 14
     _wait_for(lambda: not _processes_mentioning(str(out)), 30, "the killed batch's training to end")
 
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=600, env={**os.environ, "COLUMNS": "200"})
@@ -169,7 +164,7 @@ def test_killed_batch_resumes_the_training(streets, tmp_path: Path) -> None:
     rerun = log[log.rindex("synth_tiny_0: training"):]
     assert "resume from step" in rerun and "preprocessing" not in rerun
     assert "Resuming from" in paths.log("train").read_text()
-    assert checkpoint_step(latest_checkpoint(paths)) == 29  # the run's 30 steps in all, not 30 more
+    assert checkpoint_step(latest_checkpoint(paths)) == 14  # the run's 15 steps in all, not 15 more
     assert json.loads(paths.eval_json.read_text())["results"]["psnr"] > 5.0
 
 

@@ -6,7 +6,7 @@ are registered against the growing canonical point set; a success gives that fra
 its points (mapped back to the canonical frame) to the set. The ``centroid`` method is the paper's
 ablation (c): translation only, from the points' centroids.
 
-Ours, each with a switch in :class:`TrajectoryConfig` (docs/instances.md has the measurements):
+Ours, each with a switch in :class:`TrajectoryConfig` (docs/instances.md describes them):
 frames that fail are registered again against their nearest registered neighbours, gated by a
 constant-velocity prediction; half-turned registrations are turned back (heading_flips.py);
 points landing on surfaces that face away from the sensor are not inliers (registration.py); and

@@ -1,6 +1,6 @@
 """Waymo Open Dataset parser: v1 TFRecord segments (no TensorFlow) and the v2 parquet layout.
 
-Entry point: :func:`load_segment`. See ``docs/waymo.md`` for formats, conventions and measured
+Entry point: :func:`load_segment`. See ``docs/data.md`` for formats, conventions and measured
 accuracy and memory.
 """
 

@@ -1,7 +1,7 @@
 """How much memory loading a Waymo segment takes, known before loading it.
 
 Rays are kept as float64 origins and directions plus range, intensity, time, flags (~73 bytes a
-ray, ~100 at the peak of decoding; docs/waymo.md); images stay JPEG bytes. The
+ray, ~100 at the peak of decoding; docs/data.md); images stay JPEG bytes. The
 estimate counts the frames from the file's framing (v1, headers only) or the pose table (v2), so it
 reads nothing large.
 """
