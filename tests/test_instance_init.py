@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import numpy as np
+from scipy import stats
+from scipy.spatial.distance import cdist
 
 from idsplat_ns.data.camera import CameraImage, Intrinsics
 from idsplat_ns.data.geometry import make_pose, rot_z
@@ -115,8 +117,24 @@ def test_instance_points_are_excluded_from_the_background():
     assert np.all(np.abs(static_lidar[:, 2]) < 1e-9)
     # Random points scale with the background lidar points (0.5 per point).
     assert np.sum((ids == 0) & ~init.is_lidar) == 2 * len(ground)
-    assert init.scales.shape == (len(init.means),) and np.all(init.scales > 0)
-    assert init.colors.min() >= 0 and init.colors.max() <= 1
+    # Paper: half uniform in the lidar range's ball (radius: 95th percentile of the lidar distances
+    # from the mean ego position), half beyond it with inverse distance uniform, up to 1 km.
+    centre = np.array([0.0, -15.0, 2.0])
+    lidar_range = np.percentile(np.linalg.norm(static_lidar - centre, axis=1), 95)
+    rand = init.means[(ids == 0) & ~init.is_lidar]
+    r = np.linalg.norm(rand - centre, axis=1)
+    inner, outer = r[: len(r) // 2], r[len(r) // 2 :]
+    assert stats.kstest((inner / lidar_range) ** 3, "uniform").pvalue > 1e-3  # uniform in volume
+    assert stats.kstest(1 / outer, "uniform", (1 / 1000.0, 1 / lidar_range - 1 / 1000.0)).pvalue > 1e-3
+    assert np.all(rand[len(r) // 2 :, 2] >= centre[2])  # beyond the range: above the ground only
+    # Scales: 20 % of the mean distance to the 3 nearest other points, the background among its own
+    # points and the instance among its own (brute-force distances for a sample of rows).
+    for group in (ids == 0, ids == 3):
+        pts, scales = init.means[group], init.scales[group]
+        rows = np.random.default_rng(0).choice(len(pts), 200, replace=False)
+        d = cdist(pts[rows], pts)
+        d[np.arange(200), rows] = np.inf  # not the point itself
+        np.testing.assert_allclose(scales[rows], 0.2 * np.sort(d, axis=1)[:, :3].mean(1), rtol=1e-9)
 
 
 def test_instance_cap_shares_the_lidar_budget():

@@ -1,5 +1,5 @@
-"""Masks -> lidar lifting, the mask folder format, oracle masks, trajectory estimation and static
-conversion on a hand-built scene."""
+"""Masks -> lidar lifting, the mask folder format, oracle masks, trajectory estimation, static
+conversion and the pose-error measure (eval/instance_pose_errors.py) on a hand-built scene."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from _instances_fixtures import CAR_SIZE, body_features, make_scene
-from idsplat_ns.data.geometry import invert_pose, transform_points
+from _instances_fixtures import CAR_SIZE, body_features, box_surface, make_scene
+from idsplat_ns.data.geometry import invert_pose, make_pose, rot_z, transform_points
 from idsplat_ns.data.tracks import points_in_box
 from idsplat_ns.errors import IDSplatError
 from idsplat_ns.instances.features.base import PointFeatures
@@ -22,7 +22,7 @@ from idsplat_ns.instances.registration import RegistrationConfig
 from idsplat_ns.instances.static_conversion import convert_static_instances
 from idsplat_ns.eval.instance_pose_errors import summarise_errors
 from idsplat_ns.instances.trajectory_estimation import TrajectoryConfig, estimate_trajectories
-from idsplat_ns.instances.tracks import InstanceTracks
+from idsplat_ns.instances.tracks import InstanceTrack, InstanceTracks
 
 
 @pytest.fixture(scope="module")
@@ -188,3 +188,32 @@ def test_centroid_ablation_is_worse_than_registration(scene, oracle_masks):
     summary = summarise_errors(scene, tracks, min_points=50)
     # centroids move with the visible part of the car and ignore the turn
     assert summary.median_rotation_deg > 1.0
+
+
+def test_pose_errors_of_hand_placed_estimates(scene):
+    """The error measure the tests above rely on, on estimates with known errors: the canonical
+    origin sits 0.8 m ahead and 0.3 m left of the box centre (a pure offset g), frame 2 is 0.3 m
+    off in the world, frame 4 turned 5 degrees about the canonical origin, frame 5 2 m off but
+    with only 10 points; the parked car's exact instance is not a moving vehicle."""
+    moving, parked = scene.tracks
+    g = make_pose(np.eye(3), np.array([0.8, 0.3, 0.0]))  # canonical -> box
+    body = box_surface(500, CAR_SIZE, np.random.default_rng(0))
+    poses = moving.poses @ g  # canonical -> world, exact
+    poses[2] = make_pose(np.eye(3), np.array([0.0, 0.3, 0.0])) @ poses[2]
+    poses[4] = poses[4] @ make_pose(rot_z(np.radians(5.0)), np.zeros(3))
+    poses[5] = make_pose(np.eye(3), np.array([2.0, 0.0, 0.0])) @ poses[5]
+    counts = np.array([100, 100, 100, 100, 100, 10])
+    inst = InstanceTrack(4, "car", body - g[:3, 3], None, poses, np.ones(6, bool), counts, np.ones(6), 0)
+    still = InstanceTrack(5, "car", body, None, parked.poses.copy(), np.ones(6, bool), counts, np.ones(6), 0)
+    summary = summarise_errors(scene, InstanceTracks(np.arange(6), scene.frame_times, [inst], [still]), min_points=50)
+    (errors,) = summary.per_instance
+    assert errors.instance_id == 4 and errors.track_index == 0 and errors.frames.tolist() == [1, 2, 3, 4, 5]
+    # Turning 5 degrees about a point |g| from the box centre moves the centre by the chord 2 |g| sin(2.5°).
+    chord = 2 * np.hypot(0.8, 0.3) * np.sin(np.radians(2.5))
+    np.testing.assert_allclose(errors.translation, [0.0, 0.3, 0.0, chord, 2.0], atol=1e-9)
+    np.testing.assert_allclose(errors.rotation_deg, [0.0, 0.0, 0.0, 5.0, 0.0], atol=1e-6)
+    # Frame 5 has too few points for the medians: over frames 1-4 they are (0 + chord) / 2 and 0.
+    assert summary.frames_evaluated == 4 and summary.median_translation == pytest.approx(chord / 2)
+    assert summary.median_rotation_deg == pytest.approx(0.0, abs=1e-6)
+    assert summary.median_translation_instances == pytest.approx(chord)  # all 5 frames of a 100-point instance
+    assert (summary.matched_tracks, summary.moving_vehicle_tracks) == (1, 1)

@@ -180,6 +180,11 @@ def test_iou_tracker_and_nms():
     assert tr.update(1, [b, shifted], ["car", "car"]) == [2, 1]
     assert tr.update(2, [shifted], ["bus"]) == [3]  # another class never continues a track
     assert tr.update(5, [b], ["car"]) == [4]  # the gap is too long
+    # max_gap counts the frames a track went unseen: 2 missed frames continue with max_gap 2, 3 do not.
+    for missed, continued in ((2, True), (3, False)):
+        tr = IouTracker(min_iou=0.3, max_gap=2)
+        tr.update(0, [a], ["car"])
+        assert (tr.update(missed + 1, [a], ["car"]) == [1]) is continued, missed
     boxes = np.array([[0, 0, 10, 10], [1, 1, 10, 10], [20, 20, 30, 30]], float)
     np.testing.assert_array_equal(nms(boxes, np.array([0.5, 0.9, 0.1]), 0.5), [1, 2])
 

@@ -263,6 +263,33 @@ def test_losses_are_zero_on_perfect_predictions_and_match_closed_forms():
         *_constructed([5.0, 7.0, 0.0], [0.2, 0.6, 0.0], [-30.0, -30.0, -30.0], **gt), exact
     )
     assert wrong["lidar_ray_drop"].item() == pytest.approx(0.1 * 30.0 / 3, rel=1e-6)
+    assert "lidar_line_of_sight" not in wrong  # no cut-off render: no line-of-sight term
+
+
+def test_default_losses_leave_out_the_worst_rays_and_use_the_unnormalised_range():
+    # 20 returned rays measured at 10 m whose unnormalised range (alpha x range) is 10 + 0.1 i m,
+    # half of them with alpha 0.5; 2 rays that returned nothing.
+    i = torch.arange(20, dtype=torch.float32)
+    alpha = torch.cat([torch.where(i % 2 == 0, 0.5, 1.0), torch.tensor([0.3, 0.3])])
+    unnormalised = torch.cat([10.0 + 0.1 * i, torch.tensor([50.0, 50.0])])
+    returned = torch.arange(22) < 20
+    # Intensity is wrong only on ray 19 (the largest range error) and on the rays without a return;
+    # the summed alpha before the cut-off is 0.2 on rays 0-18.
+    intensity = torch.cat([torch.full((19,), 0.5), torch.tensor([0.9, 0.1, 0.1])])
+    before_cutoff = torch.cat([torch.full((19,), 0.2), torch.tensor([5.0, 7.0, 7.0])])
+    rays = LidarRayBatch(torch.zeros(22, 3), torch.tensor([[1.0, 0, 0]]).repeat(22, 1),
+                         torch.where(returned, 10.0, 0.0), torch.where(returned, 0.5, 0.0),
+                         torch.zeros(22, dtype=torch.float64), returned)  # fmt: skip
+    render = LidarRender(features=torch.zeros(22, 13), alpha=alpha[:, None], range=(unnormalised / alpha)[:, None],
+                         median_range=(unnormalised / alpha)[:, None], alpha_before_cutoff=before_cutoff[:, None])
+    head = LidarHeadOutput(intensity=intensity, ray_drop_logit=torch.zeros(22))
+    losses = lidar_losses(render, head, rays, LidarLossConfig())
+    # Squared errors 0.01 i^2: the 95th percentile of the 20 lies between i = 18 and i = 19, so ray
+    # 19 alone is left out of the depth, intensity and line-of-sight means. sum_{i<=18} i^2 = 2109.
+    assert losses["lidar_depth"].item() == pytest.approx(0.1 * 0.01 * 2109 / 19, rel=1e-5)
+    assert losses["lidar_intensity"].item() == pytest.approx(0.0, abs=1e-12)
+    assert losses["lidar_line_of_sight"].item() == pytest.approx(0.1 * 0.2, rel=1e-6)
+    assert losses["lidar_ray_drop"].item() == pytest.approx(0.1 * math.log(2.0), rel=1e-6)  # over all 22 rays
 
 
 def test_head_shapes_and_ranges():
@@ -274,7 +301,18 @@ def test_head_shapes_and_ranges():
     out = head(torch.randn(7, 13) * 10)
     assert out.intensity.shape == (7,) and out.ray_drop_logit.shape == (7,)
     assert ((out.intensity > 0) & (out.intensity < 1)).all()
-    torch.testing.assert_close(out.ray_drop_prob, torch.sigmoid(out.ray_drop_logit))
+    # Hand-set weights: hidden unit 0 copies feature 0 (then ReLU); output 0 is a constant
+    # intensity of 0.3 after its sigmoid, output 1 the drop logit 2 + hidden unit 0.
+    with torch.no_grad():
+        for p in head.parameters():
+            p.zero_()
+        head.mlp[0].weight[0, 0] = 1.0
+        head.mlp[-1].bias.copy_(torch.tensor([math.log(0.3 / 0.7), 2.0]))
+        head.mlp[-1].weight[1, 0] = 1.0
+    out = head(torch.tensor([[-3.0] + [0.0] * 12, [1.5] + [0.0] * 12]))
+    torch.testing.assert_close(out.intensity, torch.tensor([0.3, 0.3]))
+    torch.testing.assert_close(out.ray_drop_logit, torch.tensor([2.0, 3.5]))  # ReLU cut the negative input
+    torch.testing.assert_close(out.ray_drop_prob, torch.tensor([1 / (1 + math.exp(-2.0)), 1 / (1 + math.exp(-3.5))]))
 
 
 def test_chamfer_distance_closed_form():

@@ -218,7 +218,9 @@ def test_all_but_one_outliers() -> None:
     meas[15] = truth[15]
     result = smooth_trajectory(times, meas, np.ones(30, dtype=bool))
     assert np.all(np.isfinite(result.poses)) and np.all(np.isfinite(result.speeds))
-    assert result.inliers.sum() >= 1
+    # The exact measurement is the one kept, and the span shrinks to its time.
+    assert np.flatnonzero(result.inliers).tolist() == [15]
+    assert result.span == (pytest.approx(times[15]), pytest.approx(times[15]))
     # Sane: the trajectory stays within the cloud of measurements, nothing explodes.
     assert np.max(np.abs(result.poses[:, :3, 3] - meas[:, :3, 3].mean(axis=0))) < 200.0
 

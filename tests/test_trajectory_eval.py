@@ -1,16 +1,20 @@
 """The tracking protocols of eval/trajectory_eval.py: which annotated objects count (camera view,
-lidar range, lidar points), "don't care" predictions, and the all-objects protocol."""
+lidar range, lidar points), "don't care" predictions, the all-objects protocol, and the aligned
+trajectory RMSE."""
 
 from __future__ import annotations
 
 from dataclasses import replace
 
 import numpy as np
+import pytest
 
 from _instances_fixtures import CAR_SIZE, make_scene
 from idsplat_ns.data.geometry import make_pose
 from idsplat_ns.data.tracks import ObjectTrack
-from idsplat_ns.eval.trajectory_eval import ObservedFilter, ground_truth_positions, tracking_summary
+from idsplat_ns.eval.trajectory_eval import (
+    ObservedFilter, aligned_position_rmse, ground_truth_positions, tracking_summary,
+)  # fmt: skip
 
 
 def _with_tracks(scene, *extra):
@@ -74,3 +78,26 @@ def test_a_wrong_prediction_elsewhere_is_still_a_false_positive():
 
     m = tracking_summary(scene, positions_at)[2.0]
     assert m.num_false_positives == scene.num_frames and np.isclose(m.mota, 0.0)
+
+
+def test_aligned_position_rmse_by_hand_and_against_least_squares():
+    from scipy.optimize import least_squares
+    from scipy.spatial.transform import Rotation
+
+    # Two frames, same orientation, the boxes 0.25 m ahead of and behind where a fixed canonical
+    # point puts them: the best point is the middle one, and 0.25 m remains at both frames.
+    poses = np.stack([make_pose(np.eye(3), np.array([k * 3.0, 1.0, 0.0])) for k in range(2)])
+    centre = np.array([1.2, -0.4, 0.3])  # the box centre in the canonical frame
+    gt = poses[:, :3, 3] + centre + np.array([[0.25, 0.0, 0.0], [-0.25, 0.0, 0.0]])
+    assert aligned_position_rmse(poses, gt) == pytest.approx(0.25)
+    # A turning, climbing trajectory: exact boxes give 0 whatever the canonical origin; noisy ones
+    # the residual of the least-squares canonical point, found here numerically.
+    rng = np.random.default_rng(0)
+    R = Rotation.from_euler("zyx", np.c_[np.linspace(0, 1.5, 12), rng.normal(0, 0.05, (12, 2))]).as_matrix()
+    poses = make_pose(R, rng.normal(0, 5.0, (12, 3)))
+    exact = np.einsum("tij,j->ti", R, centre) + poses[:, :3, 3]
+    assert aligned_position_rmse(poses, exact) == pytest.approx(0.0, abs=1e-12)
+    noisy = exact + rng.normal(0, 0.2, exact.shape)
+    fit = least_squares(lambda c: (np.einsum("tij,j->ti", R, c) + poses[:, :3, 3] - noisy).ravel(), np.zeros(3))
+    expected = np.sqrt(np.mean(np.sum(fit.fun.reshape(-1, 3) ** 2, axis=1)))
+    assert aligned_position_rmse(poses, noisy) == pytest.approx(expected, rel=1e-6)

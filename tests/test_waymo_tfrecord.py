@@ -38,9 +38,14 @@ def test_crc32c_known_vectors_and_bitwise_reference():
         assert crc32c(data) == _crc32c_bitwise(data), n
 
 
-def test_masked_crc_matches_tfrecord_definition():
-    crc = crc32c(b"abc")
-    assert masked_crc32c(b"abc") == ((((crc >> 15) | (crc << 17)) & 0xFFFFFFFF) + 0xA282EAD8) & 0xFFFFFFFF
+@needs_frame
+def test_masked_crc_matches_the_checksums_tensorflow_wrote():
+    # A TFRecord is [length u64][masked crc of the length u32][data][masked crc of the data u32];
+    # the real frame was written by TensorFlow's own writer.
+    raw = FRAME.read_bytes()
+    (length,) = struct.unpack("<Q", raw[:8])
+    assert masked_crc32c(raw[:8]) == struct.unpack("<I", raw[8:12])[0]
+    assert masked_crc32c(raw[12 : 12 + length]) == struct.unpack("<I", raw[12 + length : 16 + length])[0]
 
 
 def test_round_trip_offsets_and_seeking(tmp_path):

@@ -32,7 +32,7 @@ class IouTracker:
 
     def update(self, frame: int, masks: list[np.ndarray], labels: list[str]) -> list[int]:
         """Track IDs for this frame's masks [h, w] bool (same order)."""
-        live = [t for t in self.tracks if frame - t.last_frame <= self.max_gap]
+        live = [t for t in self.tracks if self._frames_unseen(t, frame) <= self.max_gap]
         ids = [-1] * len(masks)
         if live and masks:
             iou = np.zeros((len(masks), len(live)))
@@ -52,5 +52,10 @@ class IouTracker:
                 ids[i] = self.next_id
                 self.tracks.append(_Track(self.next_id, labels[i], masks[i], frame))
                 self.next_id += 1
-        self.tracks = [t for t in self.tracks if frame - t.last_frame <= self.max_gap]
+        self.tracks = [t for t in self.tracks if self._frames_unseen(t, frame) <= self.max_gap]
         return ids
+
+    @staticmethod
+    def _frames_unseen(track: _Track, frame: int) -> int:
+        """Frames between the track's last sighting and ``frame`` in which it was not seen."""
+        return frame - track.last_frame - 1
