@@ -6,7 +6,8 @@ similarity of their features and kept when that similarity exceeds ``similarity_
 Hypotheses: rigid Umeyama fits to three random correspondences, generated and scored in batches
 (no Python loop per hypothesis). Each hypothesis is scored by its correspondence inliers; the best
 few are re-scored by the paper's fitness (the fraction of target points within ``inlier_distance``
-of a transformed source point) and the winner is refit on its inliers.
+of a transformed source point) and the winner is refit on its inliers. Normals and neighbourhood
+principal axes come from open3d.
 """
 
 from __future__ import annotations
@@ -248,17 +249,38 @@ def registration_fitness(
     return float(np.mean(inlier))
 
 
+def _open3d():
+    """open3d, imported on first use (seconds: cached runs never need it), after the project's
+    libusb guard (see :mod:`idsplat_ns._compat.libusb`)."""
+    from idsplat_ns._compat.libusb import ensure_loadable
+
+    ensure_loadable()
+    import open3d
+
+    return open3d
+
+
+def _cloud(points: np.ndarray):  # [N, 3] -> open3d PointCloud of the points about their mean
+    # Centred: open3d's covariances are one-pass (E[xx] - E[x]E[x]), which cancels far from the origin.
+    o3d = _open3d()
+    points = np.asarray(points, np.float64)
+    return o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points - points.mean(0)))
+
+
 def _local_pca(points: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:  # [N, 3] -> [N, 3], [N, 3, 3]
-    """Principal axes of each point's k nearest neighbours: eigenvalues (descending) and axes (rows)."""
-    _, idx = cKDTree(points).query(points, k=min(k, len(points)))
-    nb = points[idx] - points[idx].mean(1, keepdims=True)
-    _, eig, Vt = np.linalg.svd(np.einsum("nki,nkj->nij", nb, nb))
-    return eig, Vt
+    """Principal axes of each point's k nearest neighbours (the point included): eigenvalues
+    (descending, of the covariance divided by the neighbour count) and axes (rows)."""
+    cloud = _cloud(points)
+    cloud.estimate_covariances(_open3d().geometry.KDTreeSearchParamKNN(k))
+    eig, axes = np.linalg.eigh(np.asarray(cloud.covariances))  # ascending, axes as columns
+    return eig[:, ::-1], np.swapaxes(axes[:, :, ::-1], 1, 2)
 
 
 def estimate_normals(points: np.ndarray, k: int = 12) -> np.ndarray:  # points: [N, 3] -> [N, 3]
-    """Unit normals from the smallest principal axis of each point's k nearest neighbours."""
-    return _local_pca(points, k)[1][:, 2]
+    """Unit normals (unsigned) from the smallest principal axis of each point's k nearest neighbours."""
+    cloud = _cloud(points)
+    cloud.estimate_normals(_open3d().geometry.KDTreeSearchParamKNN(k))
+    return np.asarray(cloud.normals)
 
 
 def icp_point_to_plane(
@@ -273,18 +295,22 @@ def icp_point_to_plane(
     minimised. The small rotation is about the paired points' centroid, not the world origin: with
     the origin 24 m away, a nearly flat view's step was applied with a 24 m lever, which threw a
     car leaving the view 12 m and turned it 48 deg in two iterations."""
+    # Not open3d's registration_icp (about 2x faster on a car's points): its unguarded LDLT solve of
+    # the same normal equations slid an exactly flat wall 4.5 m along itself (median of 10) where this
+    # least squares moves it along its normal only (bench/bench_registration_libs.py).
     if len(source_xyz) < 6 or len(target_xyz) < 6:
         return transform
     normals = estimate_normals(source_xyz)
+    tree = cKDTree(source_xyz)  # once: the target is brought to the source instead (same distances)
     T = transform.copy()
     for _ in range(iterations):
-        src = source_xyz @ T[:3, :3].T + T[:3, 3]
-        nrm = normals @ T[:3, :3].T
-        dist, idx = cKDTree(src).query(target_xyz, k=1, distance_upper_bound=max_distance)
+        R, t = T[:3, :3], T[:3, 3]
+        dist, idx = tree.query((target_xyz - t) @ R, k=1, distance_upper_bound=max_distance)
         ok = np.isfinite(dist)
         if ok.sum() < 6:
             break
-        p, q, n = src[idx[ok]], target_xyz[ok], nrm[idx[ok]]
+        q, pair = target_xyz[ok], idx[ok]
+        p, n = source_xyz[pair] @ R.T + t, normals[pair] @ R.T
         c = q.mean(0)
         # residual n.(q - (p + w x (p - c) + v)) with a small rotation w about c and translation v
         A = np.concatenate([np.cross(p - c, n), n], 1)
@@ -374,6 +400,9 @@ def register(
     offset = ct.mean(0)
     cs32, ct32 = (cs - offset).astype(np.float32), (ct - offset).astype(np.float32)
 
+    # Not open3d's registration_ransac_based_on_correspondence: it keeps one best hypothesis (no
+    # re-scoring by the back-face fitness) and has no tilt limit; it finds the same inliers, faster
+    # at 30 % outliers, 1.9-3x slower at 85 % (bench/bench_registration_libs.py).
     # Keep the best hypotheses (by correspondence inliers) across batches for re-scoring.
     top_R = np.zeros((0, 3, 3))
     top_t = np.zeros((0, 3))

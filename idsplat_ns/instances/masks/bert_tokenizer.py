@@ -6,70 +6,45 @@ official implementation: each phrase attends to itself, position IDs restart aft
 
 from __future__ import annotations
 
-import unicodedata
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from tokenizers import Tokenizer, normalizers, pre_tokenizers
+from tokenizers.models import WordPiece
 
 from idsplat_ns.errors import IDSplatError
 
 
 class WordPieceTokenizer:
-    """Lower-casing, accent-stripping, punctuation-splitting WordPiece tokenizer (BERT uncased)."""
+    """BERT uncased tokenisation by the ``tokenizers`` library: text cleaning, lower-casing, accent
+    stripping, CJK characters and punctuation split apart, greedy longest-match WordPiece (words
+    over 100 characters are ``[UNK]``), as ``bert-base-uncased``'s own tokenizer does."""
 
     def __init__(self, vocab_path: Path):
         vocab_path = Path(vocab_path)
         if not vocab_path.is_file():
             raise IDSplatError(f"{vocab_path}: BERT vocab.txt not found; give bert-base-uncased's vocab.txt with --masks.grounded-sam2.tokenizer-vocab")
-        tokens = vocab_path.read_text(encoding="utf-8").splitlines()
-        self.vocab = {t: i for i, t in enumerate(tokens)}
+        try:
+            self.vocab: dict[str, int] = WordPiece.read_file(str(vocab_path))  # token -> ID (its line)
+        except Exception as exc:  # the binding raises a bare Exception (unreadable, not UTF-8)
+            raise IDSplatError(f"{vocab_path}: not a readable BERT vocab.txt ({exc}); give bert-base-uncased's vocab.txt") from None
         for special in ("[CLS]", "[SEP]", "[UNK]"):
             if special not in self.vocab:
                 raise IDSplatError(f"{vocab_path}: no {special} token; this is not a BERT vocab.txt")
-
-    @staticmethod
-    def _basic_split(text: str) -> list[str]:
-        text = unicodedata.normalize("NFD", text.lower())
-        text = "".join(c for c in text if unicodedata.category(c) != "Mn")
-        words, current = [], []
-        for c in text:
-            if c.isspace():
-                if current:
-                    words.append("".join(current))
-                    current = []
-            elif unicodedata.category(c).startswith("P") or (33 <= ord(c) <= 47) or (58 <= ord(c) <= 64):
-                if current:
-                    words.append("".join(current))
-                    current = []
-                words.append(c)
-            else:
-                current.append(c)
-        if current:
-            words.append("".join(current))
-        return words
-
-    def _wordpiece(self, word: str) -> list[str]:
-        pieces, start = [], 0
-        while start < len(word):  # greedy longest match first
-            end = len(word)
-            while end > start:
-                piece = word[start:end] if start == 0 else "##" + word[start:end]
-                if piece in self.vocab:
-                    break
-                end -= 1
-            if end == start:
-                return ["[UNK]"]
-            pieces.append(piece)
-            start = end
-        return pieces
+        self._tokenizer = Tokenizer(WordPiece(self.vocab, unk_token="[UNK]", max_input_chars_per_word=100))
+        self._tokenizer.normalizer = normalizers.BertNormalizer(
+            clean_text=True, handle_chinese_chars=True, strip_accents=None, lowercase=True)  # None: strip with lowercase
+        self._tokenizer.pre_tokenizer = pre_tokenizers.BertPreTokenizer()
 
     def tokenize(self, text: str) -> list[str]:
-        return [p for w in self._basic_split(text) for p in self._wordpiece(w)]
+        """WordPiece tokens of ``text`` (no [CLS]/[SEP])."""
+        return self._tokenizer.encode(text, add_special_tokens=False).tokens
 
     def encode(self, text: str) -> list[int]:
         """Token IDs with [CLS] and [SEP]."""
-        return [self.vocab["[CLS]"]] + [self.vocab[t] for t in self.tokenize(text)] + [self.vocab["[SEP]"]]
+        ids = self._tokenizer.encode(text, add_special_tokens=False).ids
+        return [self.vocab["[CLS]"]] + ids + [self.vocab["[SEP]"]]
 
 
 @dataclass
