@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.idsplat-installed
 DEMO   := outputs/demo
 
-.PHONY: install test test-fast demo bench clean
+.PHONY: install browser test test-fast demo bench clean
 
 # torch is installed first and alone: `torch==2.13.0` takes the CPU wheel where one is provided,
 # so no later requirement can pull the multi-GB CUDA build.
@@ -21,7 +21,15 @@ $(STAMP): pyproject.toml
 
 install: $(STAMP)
 
-test: install
+# The viewer's browser test drives a headless Chromium (the Debian package; nothing is downloaded).
+# Installed here where apt can do it; elsewhere that test says in one line what to install.
+browser:
+	@command -v chromium >/dev/null 2>&1 || command -v chromium-browser >/dev/null 2>&1 \
+		|| { [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1 \
+		     && DEBIAN_FRONTEND=noninteractive apt-get install -y -q chromium >/dev/null; } \
+		|| echo "note: no Chromium (apt-get install -y chromium); tests/test_viewer_browser.py will fail"
+
+test: install browser
 	$(BIN)/python -m pytest -q -p no:cacheprovider
 
 test-fast: install

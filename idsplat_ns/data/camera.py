@@ -100,14 +100,16 @@ class Projection:
 
 def project_points(
     points_world: np.ndarray,  # [N, 3] float64
-    camera_to_world: np.ndarray,  # [4, 4] OpenCV axes
+    camera_to_world: np.ndarray,  # [4, 4] OpenCV axes, or [N, 4, 4]: one pose per point
     intrinsics: Intrinsics,
     min_depth: float = 1e-3,
 ) -> Projection:
-    """Project world points with the full camera model (pose, pinhole, distortion)."""
+    """Project world points with the full camera model (pose, pinhole, distortion). A pose per
+    point serves rolling-shutter images, where each line has its own pose."""
     pts = np.asarray(points_world, dtype=np.float64)
-    R, t = camera_to_world[:3, :3], camera_to_world[:3, 3]
-    cam = (pts - t) @ R  # R^T (p - t), row-vector form
+    R, t = camera_to_world[..., :3, :3], camera_to_world[..., :3, 3]
+    # R^T (p - t), row-vector form
+    cam = (pts - t) @ R if R.ndim == 2 else np.einsum("ni,nij->nj", pts - t, R)
     depth = cam[:, 2]
     front = depth > min_depth
     xy = cam[:, :2] / np.where(front, depth, 1.0)[:, None]

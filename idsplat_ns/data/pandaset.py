@@ -4,7 +4,8 @@ Layout of a sequence folder (see docs/formats/pandaset.md): ``camera/<cam>/{NN.j
 intrinsics.json, timestamps.json}``, ``lidar/{NN.pkl.gz, poses.json, timestamps.json}`` with points
 in the world frame (columns x, y, z, i, t, d; d = 0 Pandar64 spinning, d = 1 PandarGT front),
 ``annotations/cuboids/NN.pkl.gz``. Optional project extensions in ``idsplat_extras/``: rays that
-returned nothing, ground-truth instance masks and their classes.
+returned nothing, ground-truth instance masks and their classes, and the cameras' rolling-shutter
+readout (``rolling_shutter.json``; without it, as in PandaSet proper, images are global-shutter).
 
 Conventions applied here, once: world recentred on the first kept lidar (ego) position; times in
 seconds from the first kept frame; intensity scaled from 0..255 to [0, 1]; each returned point's
@@ -21,7 +22,7 @@ from typing import Optional, Sequence
 import numpy as np
 import pandas as pd
 
-from idsplat_ns.data.camera import CameraImage, Intrinsics
+from idsplat_ns.data.camera import CameraImage, Intrinsics, RollingShutter
 from idsplat_ns.data.geometry import make_pose, quat_to_rotmat, rot_z
 from idsplat_ns.data.lidar import LidarSweep, rays_from_points
 from idsplat_ns.data.scene import Scene, recentring_transform
@@ -204,7 +205,8 @@ def load_sequence(
         cam_meta[cam] = (intr, poses, stamps)
     time_origin = min([lidar_times_raw[frames[0]]] + [m[2][frames[0]] for m in cam_meta.values()])
 
-    images = _load_images(root, frames, cameras, cam_meta, world_from_raw, time_origin)
+    shutters = _read_rolling_shutter(root / EXTRAS / "rolling_shutter.json", cameras)
+    images = _load_images(root, frames, cameras, cam_meta, world_from_raw, time_origin, shutters)
     sweeps = []
     if load_lidar:
         sweeps = [
@@ -237,7 +239,33 @@ def load_sequence(
     )
 
 
-def _load_images(root, frames, cameras, cam_meta, world_from_raw, time_origin) -> list[CameraImage]:
+ROLLING_SHUTTER_DIRECTIONS = ("top_to_bottom", "bottom_to_top", "left_to_right", "right_to_left", "global")
+
+
+def _read_rolling_shutter(path: Path, cameras: Sequence[str]) -> dict[str, RollingShutter]:
+    """``{camera: RollingShutter}`` from ``idsplat_extras/rolling_shutter.json`` (``{camera:
+    {"readout_seconds": s, "direction": d}}``); empty when the file is absent (PandaSet proper)."""
+    if not path.is_file():
+        return {}
+    data = read_json(path)
+    if not isinstance(data, dict):
+        raise IDSplatError(f"{path}: expected an object of camera names; regenerate the sequence")
+    out = {}
+    for cam in cameras:
+        entry = data.get(cam)
+        if entry is None:
+            continue
+        readout = entry.get("readout_seconds") if isinstance(entry, dict) else None
+        direction = entry.get("direction") if isinstance(entry, dict) else None
+        if not isinstance(readout, (int, float)) or not np.isfinite(readout) or not 0 <= readout < 1:
+            raise IDSplatError(f"{path}: {cam}: readout_seconds must be a number in [0, 1); regenerate the sequence")
+        if direction not in ROLLING_SHUTTER_DIRECTIONS:
+            raise IDSplatError(f"{path}: {cam}: direction {direction!r} is not one of {', '.join(ROLLING_SHUTTER_DIRECTIONS)}")
+        out[cam] = RollingShutter(readout_seconds=float(readout), direction=direction)
+    return out
+
+
+def _load_images(root, frames, cameras, cam_meta, world_from_raw, time_origin, shutters) -> list[CameraImage]:
     images = []
     first_size: dict[str, tuple[int, tuple[int, int]]] = {}
     for f in frames:
@@ -262,6 +290,7 @@ def _load_images(root, frames, cameras, cam_meta, world_from_raw, time_origin) -
                     camera_to_world=world_from_raw @ poses[f],
                     intrinsics=Intrinsics(fx=intr["fx"], fy=intr["fy"], cx=intr["cx"], cy=intr["cy"], width=width, height=height),
                     image_path=path,
+                    rolling_shutter=shutters.get(cam),
                     instance_mask_path=mask if mask.is_file() else None,
                 )
             )

@@ -14,6 +14,7 @@ from matplotlib.figure import Figure
 from idsplat_ns.errors import IDSplatError
 from idsplat_ns.atomic import atomic_path
 from idsplat_ns.eval.tracking import Track, frame_sort_key
+from idsplat_ns.model.instance_palette import instance_rgb
 
 
 
@@ -34,6 +35,14 @@ def tracks_by_id(frames: Track) -> dict[object, np.ndarray]:
     return {obj: np.stack(p) for obj, p in out.items()}
 
 
+def _colour(obj: object, n: int):
+    """An instance ID's colour of the instance renders and the viewer (model/instance_palette.py);
+    other keys (a test's names) take matplotlib's cycle by order."""
+    if isinstance(obj, (int, np.integer)) and not isinstance(obj, bool) and obj > 0:
+        return instance_rgb(int(obj))
+    return f"C{n % 10}"
+
+
 def _panel(ax, gt: Track, pred: Track, title: str | None, ego: np.ndarray | None = None, label_ids: bool = False) -> None:
     """One top view; ``ego`` [F, 2+] is drawn dashed with an arrow at its end; ``label_ids`` writes
     each predicted track's ID at its start (the IDs idsplat-edit takes)."""
@@ -43,12 +52,12 @@ def _panel(ax, gt: Track, pred: Track, title: str | None, ego: np.ndarray | None
             ax.annotate("", xy=ego[-1, :2], xytext=ego[-2, :2], arrowprops={"arrowstyle": "->", "color": "0.35"})
     for n, (_, xy) in enumerate(tracks_by_id(gt).items()):
         ax.plot(xy[:, 0], xy[:, 1], "-", color="black", lw=2.0, alpha=0.5, label="ground truth" if n == 0 else None)
-    cmap = [f"C{k}" for k in range(10)]
     for n, (obj, xy) in enumerate(tracks_by_id(pred).items()):
-        ax.plot(xy[:, 0], xy[:, 1], "-", color=cmap[n % 10], lw=1.2, label="predicted" if n == 0 else None)
-        ax.plot(xy[:1, 0], xy[:1, 1], "o", color=cmap[n % 10], ms=3)
+        colour = _colour(obj, n)
+        ax.plot(xy[:, 0], xy[:, 1], "-", color=colour, lw=1.2, label="predicted" if n == 0 else None)
+        ax.plot(xy[:1, 0], xy[:1, 1], "o", color=colour, ms=3)
         if label_ids:
-            ax.annotate(str(obj), xy[0, :2], xytext=(3, 3), textcoords="offset points", color=cmap[n % 10], fontsize=8,
+            ax.annotate(str(obj), xy[0, :2], xytext=(3, 3), textcoords="offset points", color=colour, fontsize=8,
                         fontweight="bold")
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x [m]")
@@ -131,7 +140,7 @@ def plot_position_errors(gt: Track, pred: Track, path: str | os.PathLike, title:
     ax = fig.add_subplot(1, 1, 1)
     errors = position_errors(gt, pred)
     for n, (obj, (frames, err)) in enumerate(sorted(errors.items(), key=lambda kv: frame_sort_key(kv[0]))):
-        ax.plot(frames, err, "o-", ms=3, lw=1.0, color=f"C{n % 10}", label=f"ID {obj}")
+        ax.plot(frames, err, "o-", ms=3, lw=1.0, color=_colour(obj, n), label=f"ID {obj}")
     if not errors:
         ax.text(0.5, 0.5, "no annotated track to compare with", ha="center", va="center", transform=ax.transAxes)
     ax.set_xlabel("frame")

@@ -5,6 +5,14 @@ within ``max_distance`` of the sensor that land inside an (eroded) instance mask
 instance and frame, the points from all cameras are merged and clustered with DBSCAN, and only the
 largest cluster is kept. Instance IDs that come from different cameras (per-camera tracking) are
 merged when they claim the same lidar points at the same frame and never meet in one image.
+
+Rolling-shutter images (Waymo; the built-in street made with ``--rolling-shutter-ms``): each
+point is projected with the camera pose of the line it lands on. That pose is interpolated along
+the camera's own path, and the line's time is solved by
+:func:`~idsplat_ns.data.rolling_shutter.project_rolling`. Each point keeps its own lidar time
+(``InstanceObservation.times``) and its world position at that time. A moving object's motion
+between its lidar time and the line's time is not compensated: it is not known before
+registration.
 """
 
 from __future__ import annotations
@@ -19,6 +27,7 @@ import numpy as np
 from sklearn.cluster import DBSCAN
 from tqdm import tqdm
 
+from idsplat_ns.data.rolling_shutter import camera_paths, project_rolling
 from idsplat_ns.data.scene import Scene
 from idsplat_ns.instances.cache import load_npz, save_npz
 from idsplat_ns.instances.masks.base import InstanceMaskSet
@@ -47,6 +56,9 @@ class LiftingConfig:
     """Observations (instance at one frame) with fewer points are dropped."""
     merge_overlap: float = 0.3
     """Two IDs are one object when, at one frame, this fraction of the smaller one's points are shared."""
+    rolling_shutter: bool = True
+    """Project into rolling-shutter images with each line's camera pose (no effect on global-shutter
+    images; False: the ablation, every point with the image's single pose)."""
 
 
 @dataclass
@@ -171,6 +183,7 @@ def paint_points(scene: Scene, masks: InstanceMaskSet, config: LiftingConfig, pr
     painted: dict[int, dict[int, list[tuple[np.ndarray, int, np.ndarray]]]] = defaultdict(lambda: defaultdict(list))
     co_visible: list[set[int]] = []
     sweep_cache: dict[int, tuple[int, np.ndarray, np.ndarray]] = {}
+    paths = camera_paths(scene.images) if config.rolling_shutter else {}
     for img_idx, image in enumerate(tqdm(scene.images, desc="point painting", disable=not progress)):
         ids = masks.load(image.camera, image.frame_index)
         if ids is None or not ids.any():
@@ -186,7 +199,7 @@ def paint_points(scene: Scene, masks: InstanceMaskSet, config: LiftingConfig, pr
             sweep_cache[id(sweep)] = (frame, sweep.points, ranges <= config.max_distance, sweep.times[sweep.returned])
         frame, points, near, _ = sweep_cache[id(sweep)]
         eroded = erode_instance_map_adaptive(ids, config.erosion_px, config.min_kept_area)
-        proj = image.project(points)
+        proj, _ = project_rolling(points, image, paths.get(image.camera))
         ok = proj.valid & near
         idx = np.nonzero(ok)[0]
         # Masks may be stored at another resolution than the intrinsics: scale pixel coordinates.

@@ -104,3 +104,23 @@ def compose_gaussians(
     means_w = means_k.index_put((dyn,), moved_means)
     quats_w = quats_k.index_put((dyn,), moved_quats)
     return means_w, quats_w, keep
+
+
+def gaussian_velocities(
+    means_world: Tensor,  # [M, 3] composed means (the output of compose_gaussians)
+    instance_ids: Tensor,  # [M] int, their instance IDs
+    traj_t: Tensor,  # [Z, 3] translation of each trajectory at the render time
+    traj_linear: Tensor,  # [Z, 3] world-frame linear velocity (m/s)
+    traj_angular: Tensor,  # [Z, 3] world-frame angular velocity (rad/s)
+    traj_ids: Tensor,  # [Z] int instance ID of each trajectory row
+) -> Tensor:  # [M, 3]
+    """World-frame velocity of each composed Gaussian mean: zero for the background, the rigid
+    motion ``v + w x (x - t)`` of its instance otherwise (what the rolling shutter needs)."""
+    row = trajectory_index(instance_ids, traj_ids)
+    dyn = torch.nonzero(row >= 0).squeeze(-1)
+    out = torch.zeros_like(means_world)
+    if dyn.numel() == 0:
+        return out
+    r = row[dyn]
+    moving = traj_linear[r] + torch.cross(traj_angular[r], means_world[dyn] - traj_t[r], dim=-1)
+    return out.index_put((dyn,), moving)

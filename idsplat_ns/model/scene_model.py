@@ -11,6 +11,11 @@ to each camera's render time; only when there are instances whose poses depend o
 Sensor embeddings and time offsets exist only for the cameras that have training images
 (``embedded_sensors``); another camera renders with a zero embedding and no offset, which is what
 a zero-initialised row that never receives a gradient would give.
+
+Sensor fidelity (docs/sensor_fidelity.md): a render of a rolling-shutter image draws each
+Gaussian where it is when its line is exposed. The camera moves, and instance Gaussians move
+with their trajectory's velocity. With ``view_directions`` the RGB decoder also gets each
+pixel's world-frame ray direction.
 """
 
 from __future__ import annotations
@@ -21,6 +26,7 @@ from typing import Optional, Sequence
 import torch
 from torch import Tensor, nn
 
+from idsplat_ns.model.camera_shutter import ImageShutter
 from idsplat_ns.model.decoders import RGBDecoderCNN
 from idsplat_ns.model.gaussians import GaussianSet
 from idsplat_ns.model.lidar_head import LidarHead, LidarHeadOutput
@@ -50,12 +56,14 @@ class SceneModel(nn.Module):
     def __init__(self, gaussians: GaussianSet, num_sensors: int, decoder: DecoderConfig,
                  trajectories: Optional[nn.Module] = None, background=(0.5, 0.5, 0.5), *,
                  lidar_head_hidden: Optional[int] = None, camera_time_offsets: bool = False,
-                 embedded_sensors: Optional[Sequence[int]] = None) -> None:
+                 embedded_sensors: Optional[Sequence[int]] = None, view_directions: bool = False) -> None:
         """``lidar_head_hidden``: hidden width of the lidar head (None: no lidar head, camera-only
         scene). ``camera_time_offsets``: learn a time offset per camera (only with trajectories).
         ``embedded_sensors``: the sensor indices (of ``num_sensors``) that get an embedding and a
-        time offset, in row order (None: all)."""
+        time offset, in row order (None: all). ``view_directions``: the RGB decoder also takes
+        each pixel's world-frame ray direction (view-dependent colour)."""
         super().__init__()
+        self.decoder_config = decoder
         self.gaussians = gaussians
         self.trajectories = trajectories
         embedded = list(range(num_sensors)) if embedded_sensors is None else sorted(set(int(s) for s in embedded_sensors))
@@ -66,13 +74,35 @@ class SceneModel(nn.Module):
         self.sensor_rows = [embedded.index(s) if s in embedded else -1 for s in range(num_sensors)]
         self.sensor_embedding = nn.Embedding(len(embedded), decoder.sensor_embedding_dim)
         nn.init.zeros_(self.sensor_embedding.weight)
-        self.rgb_decoder = RGBDecoderCNN(decoder.feature_dim, decoder.sensor_embedding_dim, decoder.hidden, decoder.kernel, decoder.blocks)
+        self.set_view_directions(view_directions)
         self.background = nn.Parameter(torch.logit(torch.tensor(background, dtype=torch.float32).clamp(0.01, 0.99)))
         self.lidar_head = None if lidar_head_hidden is None else LidarHead(decoder.feature_dim, lidar_head_hidden)
         # A time offset only moves instances: without trajectories it would get no gradient.
         self.camera_time_offset = (
             nn.Parameter(torch.zeros(len(embedded))) if camera_time_offsets and trajectories is not None else None
         )
+
+    def set_view_directions(self, enabled: bool) -> None:
+        """(Re)build the RGB decoder with or without the view-direction input (a fresh decoder: a
+        checkpoint's weights are loaded into it next)."""
+        d = self.decoder_config
+        self.view_directions = bool(enabled)
+        self.rgb_decoder = RGBDecoderCNN(d.feature_dim, d.sensor_embedding_dim, d.hidden, d.kernel, d.blocks,
+                                         view_dim=3 if enabled else 0)
+
+    def decoder_like(self, state_dict: dict, prefix: str = "") -> None:
+        """Give the RGB decoder the view-direction input of a checkpoint's ``state_dict`` (keys
+        under ``prefix``): models trained without view-dependent colour have three input channels
+        fewer. Call before loading the state dict."""
+        weight = state_dict.get(prefix + "rgb_decoder.inp.weight")
+        if weight is None:
+            return
+        d = self.decoder_config
+        with_dirs = int(weight.shape[1]) - d.feature_dim - d.sensor_embedding_dim == 3
+        if with_dirs != self.view_directions:
+            device = self.background.device
+            self.set_view_directions(with_dirs)
+            self.rgb_decoder.to(device)
 
     @property
     def has_instances(self) -> bool:
@@ -93,8 +123,10 @@ class SceneModel(nn.Module):
         weight = self.sensor_embedding.weight
         return weight[row : row + 1] if row >= 0 else weight.new_zeros(1, weight.shape[1])
 
-    def posed_gaussians(self, time: Optional[float | Tensor]) -> dict[str, Tensor]:
-        """Activated Gaussians in the world at ``time`` (seconds); absent instances removed."""
+    def posed_gaussians(self, time: Optional[float | Tensor], with_velocities: bool = False) -> dict[str, Tensor]:
+        """Activated Gaussians in the world at ``time`` (seconds); absent instances removed.
+        ``with_velocities`` adds ``velocities`` [M, 3], the world-frame velocity of each mean
+        (zero for the background), when instances move; a static scene has none."""
         g = self.gaussians.activated()
         ids = self.gaussians.instance_ids
         if self.trajectories is None:  # a static scene: nothing to pose or drop
@@ -102,12 +134,19 @@ class SceneModel(nn.Module):
         if time is None:  # without a time only the static background is defined
             keep = ids == 0
             return {k: v[keep] for k, v in g.items()} | {"instance_ids": ids[keep]}
-        from idsplat_ns.model.composition import compose_gaussians
+        from idsplat_ns.model.composition import compose_gaussians, gaussian_velocities
 
-        R, t, present = self.trajectories.poses_at(time)
-        means, quats, keep = compose_gaussians(g["means"], g["quats"], ids, R, t, present, self.trajectories.instance_ids)
+        traj_ids = self.trajectories.instance_ids
+        if with_velocities:
+            R, t, present, linear, angular = self.trajectories.motion_at(time)
+        else:
+            R, t, present = self.trajectories.poses_at(time)
+        means, quats, keep = compose_gaussians(g["means"], g["quats"], ids, R, t, present, traj_ids)
         out = {k: v[keep] for k, v in g.items() if k not in ("means", "quats")}
-        return out | {"means": means, "quats": quats, "instance_ids": ids[keep]}
+        out = out | {"means": means, "quats": quats, "instance_ids": ids[keep]}
+        if with_velocities:
+            out["velocities"] = gaussian_velocities(means, ids[keep], t, linear, angular, traj_ids)
+        return out
 
     def render_camera(
         self,
@@ -117,20 +156,24 @@ class SceneModel(nn.Module):
         height: int,
         time: Optional[float],
         sensor: int = 0,
+        shutter: Optional[ImageShutter] = None,
     ) -> dict[str, Tensor]:
-        """rgb [H, W, 3], depth / accumulation [H, W, 1], instance_id [H, W, 1] (-1 empty, 0 static)."""
-        g = self.posed_gaussians(self.camera_time(time, sensor))
+        """rgb [H, W, 3], depth / accumulation [H, W, 1], instance_id [H, W, 1] (-1 empty, 0 static).
+        ``shutter``: the rolling shutter of the recorded image rendered (None: global shutter)."""
+        g = self.posed_gaussians(self.camera_time(time, sensor), with_velocities=shutter is not None)
+        motion = None if shutter is None else shutter.motion(width, height, viewmat.device, g.get("velocities"))
         feats = torch.cat([g["colors"], g["features"]], dim=1)
         out = rasterize_camera(
             g["means"], g["quats"], g["scales"], g["opacities"], feats, viewmat[None], K[None], width, height,
             # per-instance maps cost a compositing channel each: only when instances exist
-            instance_ids=g["instance_ids"] if self.has_instances else None,
+            instance_ids=g["instance_ids"] if self.has_instances else None, motion=motion,
         )
         alpha = out.alpha[0]
         background = torch.sigmoid(self.background)
         base = out.features[0, ..., :3] + (1 - alpha) * background
         emb = self.sensor_embedding_of(sensor)
-        rgb = self.rgb_decoder(base[None], out.features[:, ..., 3:], emb)[0]
+        dirs = ray_directions(viewmat, K, width, height)[None] if self.view_directions else None
+        rgb = self.rgb_decoder(base[None], out.features[:, ..., 3:], emb, dirs)[0]
         return {
             "rgb": rgb,
             "depth": out.depth[0],
@@ -154,3 +197,14 @@ class SceneModel(nn.Module):
         render = render_lidar_rays(self.posed_gaussians, rays, sensor_to_world, num_time_bins,
                                    cutoff_ranges=cutoff_ranges, **rasterizer_kwargs)  # fmt: skip
         return render, self.lidar_head(render.features)
+
+
+def ray_directions(viewmat: Tensor, K: Tensor, width: int, height: int) -> Tensor:  # -> [H, W, 3]
+    """World-frame unit directions of the rays through the pixel centres of a pinhole camera
+    (``viewmat`` [4, 4] world-to-camera, OpenCV axes; ``K`` [3, 3])."""
+    dtype, device = viewmat.dtype, viewmat.device
+    v, u = torch.meshgrid(torch.arange(height, dtype=dtype, device=device) + 0.5,
+                          torch.arange(width, dtype=dtype, device=device) + 0.5, indexing="ij")
+    d_cam = torch.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], torch.ones_like(u)], -1)  # [H, W, 3]
+    d = d_cam @ viewmat[:3, :3]  # R^T d_cam in row form: camera to world
+    return d / torch.linalg.vector_norm(d, dim=-1, keepdim=True)

@@ -287,11 +287,23 @@ class InstanceTrajectories(nn.Module):
         grad (a learnable camera time offset), w.r.t. ``t``. Poses of absent instances are the
         extrapolated/clamped values and must not be used.
         """
+        R, trans, present, _, _ = self._interpolate(t, velocities=False)
+        return R, trans, present
+
+    def motion_at(self, t: float | Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
+        """:meth:`poses_at` plus the instances' world-frame velocities at ``t``: ``(R, trans,
+        present, linear [Z, 3] m/s, angular [Z, 3] rad/s)``. A point ``x`` of instance z moves at
+        ``linear[z] + angular[z] x (x - trans[z])``. The velocities are those of the segment that
+        brackets ``t`` (constant along it), zero for an instance with a single valid step."""
+        return self._interpolate(t, velocities=True)
+
+    def _interpolate(self, t: float | Tensor, velocities: bool) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
         present = self.present_at(t)
         Z = self.num_instances
         dtype, device = self.positions.dtype, self.positions.device
         if Z == 0:
-            return torch.zeros(0, 3, 3, dtype=dtype, device=device), torch.zeros(0, 3, dtype=dtype, device=device), present
+            empty = torch.zeros(0, 3, dtype=dtype, device=device)
+            return torch.zeros(0, 3, 3, dtype=dtype, device=device), empty, present, empty, empty
         first = self.span_first.clamp_min(0)
         last = self.span_last.clamp_min(0)
         # Left step of the bracketing segment, restricted to the instance's span.
@@ -314,7 +326,13 @@ class InstanceTrajectories(nn.Module):
         R1 = self.base_rotations[zi, k1] @ so3_exp(self.rotation_deltas[zi, k1])
         rel = so3_log(R0.transpose(-1, -2) @ R1)  # [Z, 3] geodesic from step k0 to k1
         R = R0 @ so3_exp(w[:, None] * rel)
-        return R, trans, present
+        if not velocities:
+            return R, trans, present, trans, trans
+        # d/dt of R0 exp(w rel) is R [rel / dt]x: body rate rel / dt, world rate R rel / dt.
+        inv_dt = torch.where(single, torch.zeros_like(dt), 1.0 / dt).to(dtype)[:, None]
+        linear = (p1 - p0) * inv_dt
+        angular = (R @ (rel * inv_dt)[..., None]).squeeze(-1)
+        return R, trans, present, linear, angular
 
     def forward(self, t: float | Tensor) -> tuple[Tensor, Tensor, Tensor]:
         """Same as :meth:`poses_at`."""

@@ -27,8 +27,11 @@ from torch import Tensor, nn
 from idsplat_ns.data.images import load_rgb
 from idsplat_ns.eval.image_metrics import psnr, ssim
 from idsplat_ns.instances.static_conversion import StaticConversionConfig, convert_static_instances
+from idsplat_ns.model.camera_shutter import ShutterLookup
 from idsplat_ns.model.gaussians import GaussianSet
 from idsplat_ns.model.initialisation import InitConfig
+from idsplat_ns.model.instance_palette import instance_colors
+from idsplat_ns.model.instance_visibility import render_camera_hiding
 from idsplat_ns.model.lidar_supervision import LidarConfig, LidarSupervisor, SweepRender, render_sweep, sweeps_of_frames
 from idsplat_ns.model.mcmc import MCMCConfig, MCMCDensifier, mcmc_regularisation
 from idsplat_ns.model.path_time import PathClock
@@ -38,6 +41,8 @@ from idsplat_ns.model.schedules import resolution_downscale
 from idsplat_ns.nerfstudio.dataparser import OPENCV_TO_OPENGL
 from idsplat_ns.nerfstudio.dataset import frames_of_split
 from idsplat_ns.nerfstudio.render_guard import check_render_tools
+from idsplat_ns.nerfstudio.viewer_controls import InstanceControls, in_viewer_render
+from idsplat_ns.nerfstudio.viewer_scene import start_view
 
 CONSOLE = Console()
 GAUSSIAN_GROUPS = GaussianSet.PARAM_NAMES
@@ -97,6 +102,14 @@ class IDSplatModelConfig(ModelConfig):
     that is seen in one frame is modelled as static Gaussians without a trajectory, whatever the
     instance mode. None: the threshold the instance preprocessing used when the tracks carry one
     (``--pipeline.datamanager.preprocess.static.min-displacement``), else 1 m (the paper's)."""
+    rolling_shutter: bool = True
+    """Render each recorded image with its rolling shutter where the data gives one (Waymo, the
+    built-in street made with ``--rolling-shutter-ms``): each Gaussian is drawn where it is when its
+    line is exposed. No effect on global-shutter data (PandaSet). False: the ablation."""
+    view_directions: bool = True
+    """View-dependent colour: the RGB decoder also takes each pixel's world-frame ray direction, as
+    in SplatAD, whose decoder the paper adopts (False: the ablation; a checkpoint keeps the choice
+    it was trained with)."""
 
 
 class IDSplatModel(Model):
@@ -137,7 +150,9 @@ class IDSplatModel(Model):
             lidar_head_hidden=self.config.lidar.head_hidden if lidar_sweeps else None,
             camera_time_offsets=self.config.learn_camera_time_offsets,
             embedded_sensors=[i for i, name in enumerate(self.camera_names) if name in self.used_cameras],
+            view_directions=self.config.view_directions,
         )
+        self.shutters = ShutterLookup(scene.images, self.camera_names) if self.config.rolling_shutter else None
         self.lidar = LidarSupervisor(lidar_sweeps, self.config.lidar, seed=self.config.init_seed) if lidar_sweeps else None
         cap = min(self.config.mcmc.cap_max, int(self.config.cap_factor * max(gaussians.num, 1)))
         self.mcmc_config = replace(self.config.mcmc, cap_max=cap)
@@ -152,6 +167,8 @@ class IDSplatModel(Model):
         self.path_clock = PathClock([np.stack([im.camera_to_world[:3, 3] for im in ims]) for ims in by_sensor.values()],
                                     [np.array([im.time for im in ims]) for ims in by_sensor.values()])
         self._noted_missing_time = False
+        # The viewer's instance panel (nerfstudio finds it as a ViewerControl attribute).
+        self.viewer_controls = InstanceControls(self, start_view(scene))
         self.step = 0
         self._lpips = None
         self.instance_mode = str(metadata.get("instance_mode", "static" if tracks is None else "given"))
@@ -251,6 +268,7 @@ class IDSplatModel(Model):
             self.gaussians.resize_(num)
         self.step = 10**9  # a loaded model renders at full resolution
         rebuilt = self._trajectories_like(state_dict)
+        self.scene_model.decoder_like(state_dict, prefix="scene_model.")
         out = super().load_state_dict(state_dict, strict=strict, **kwargs)
         if rebuilt:
             self.scene_model.trajectories.reset_span_margin()
@@ -320,7 +338,11 @@ class IDSplatModel(Model):
         viewmat, K, width, height = self._camera_inputs(camera, downscale)
         meta = camera.metadata or {}
         sensor = int(meta["sensor_idx"].reshape(-1)[0]) if "sensor_idx" in meta else 0
-        outputs = self.scene_model.render_camera(viewmat, K, width, height, self._render_time(camera), sensor)
+        time = self._render_time(camera)
+        shutter = self.shutters.at(sensor, time) if self.shutters is not None else None
+        # Instances hidden in the viewer's panel are left out of the viewer's renders only.
+        outputs = render_camera_hiding(self.scene_model, self.viewer_controls.hidden_now(),
+                                       viewmat, K, width, height, time, sensor, shutter)
         # Training steps only: the viewer renders under no_grad while the model is in training mode.
         if self.training and torch.is_grad_enabled() and self.lidar is not None and self.lidar.is_lidar_step(self.step):
             rays, sensor_to_world = self.lidar.sample(self.device)
@@ -334,7 +356,15 @@ class IDSplatModel(Model):
 
     @torch.no_grad()
     def get_outputs_for_camera(self, camera: Cameras, obb_box=None) -> Dict[str, Tensor]:  # type: ignore[override]
-        return self.get_outputs(camera.to(self.device))
+        """The render outputs plus ``instances`` (the ID map in the categorical instance colours)
+        when the model has instances; viewer renders also get the panel's highlight."""
+        camera = camera.to(self.device)
+        outputs = self.get_outputs(camera)
+        if self.scene_model.has_instances:
+            outputs["instances"] = instance_colors(outputs["instance_id"][..., 0])
+        if in_viewer_render():
+            outputs = self.viewer_controls.after_render(outputs, self._render_time(camera))
+        return outputs
 
     # --- losses and metrics -------------------------------------------------------------------
     def _gt_image(self, batch: Dict, like: Tensor) -> Tensor:
@@ -395,13 +425,3 @@ class IDSplatModel(Model):
             self._lpips = LPIPS.from_files(self.config.lpips_backbone, net=self.config.lpips_net).to(self.device)
         return self._lpips
 
-
-def instance_colors(ids: Tensor) -> Tensor:
-    """[H, W] instance IDs (-1 empty, 0 static) as a colour image [H, W, 3]: static grey, instances
-    in distinct hues, empty black."""
-    golden = 0.618033988749895
-    hue = (ids.clamp(min=0).float() * golden) % 1.0
-    k = torch.tensor([5.0, 3.0, 1.0], device=ids.device)
-    rgb = 1 - 0.8 * torch.clamp(torch.minimum((k + hue[..., None] * 6) % 6, 4 - (k + hue[..., None] * 6) % 6), 0, 1)
-    rgb = torch.where((ids == 0)[..., None], torch.full_like(rgb, 0.5), rgb)
-    return torch.where((ids < 0)[..., None], torch.zeros_like(rgb), rgb)

@@ -10,10 +10,11 @@ calc_compensations=False) -> Projection``
 
 ``rasterize_camera(means, quats, scales, opacities [N], features [N,D], viewmats, Ks, width,
 height, *, instance_ids=None [N] int64, near_plane=0.01, far_plane=1e10, backend="auto",
-eps2d=0.3, tile_size=8, return_instance_alpha=False) -> CameraRender``
+eps2d=0.3, tile_size=8, return_instance_alpha=False, motion=None) -> CameraRender``
     Camera images: ``features`` [C,H,W,D], ``alpha`` [C,H,W,1], ``depth`` (expected) and
     ``median_depth`` [C,H,W,1], ``instance_id`` [C,H,W] int64 (-1 where empty), ``means2d``,
-    ``radii``. No background is composited.
+    ``radii``. No background is composited. ``motion`` (:class:`CameraMotion`): rolling shutter,
+    each Gaussian drawn where it is when its line is exposed (see :mod:`.rolling_shutter`).
 
 ``rasterize_lidar(means [N,3] or [K,N,3], quats [N,4] or [K,N,4], scales [N,3], opacities [N],
 features [N,D], lidar_from_world [4,4] or [K,4,4], ray_azimuth [R], ray_elevation [R], *,
@@ -34,8 +35,10 @@ from .lidar import LidarRender, rasterize_lidar
 from .camera import CameraRender, rasterize_camera, rasterize_projected
 from .projection import Projection, covariance_3d, project_gaussians, quat_to_rotmat
 from .reference import rasterize_dense
+from .rolling_shutter import CameraMotion, ShutterTiming
 
 __all__ = [
+    "CameraMotion",
     "CameraRender",
     "LidarRender",
     "rasterize_lidar",
@@ -46,4 +49,5 @@ __all__ = [
     "rasterize_camera",
     "rasterize_dense",
     "rasterize_projected",
+    "ShutterTiming",
 ]

@@ -11,6 +11,7 @@ from torch import Tensor
 
 from ..errors import IDSplatError
 from .projection import Projection, project_gaussians
+from .rolling_shutter import CameraMotion
 from .tile_composite import DEFAULT_CHUNK_ELEMS, CompositePlan, TileCoefficients, TileComposite, pixel_basis
 from .tiles import intersect_tiles, tiles_to_image
 
@@ -53,6 +54,17 @@ def _check_inputs(means, quats, scales, opacities, features, viewmats, Ks, insta
         raise IDSplatError(f"rasterize_camera: instance_ids has shape {tuple(instance_ids.shape)}, expected ({n},)")
 
 
+def _check_motion(motion: CameraMotion, n: int, c: int) -> None:
+    t = motion.timing
+    shapes = {"timing.t0": (t.t0, (c,)), "timing.du": (t.du, (c,)), "timing.dv": (t.dv, (c,)),
+              "linear_velocity": (motion.linear_velocity, (c, 3)), "angular_velocity": (motion.angular_velocity, (c, 3))}
+    if motion.velocities is not None:
+        shapes["velocities"] = (motion.velocities, (n, 3))
+    for name, (x, shape) in shapes.items():
+        if tuple(x.shape) != shape:
+            raise IDSplatError(f"rasterize_camera: motion.{name} has shape {tuple(x.shape)}, expected {shape}")
+
+
 def _gsplat_available() -> bool:
     return importlib.util.find_spec("gsplat") is not None
 
@@ -75,6 +87,7 @@ def rasterize_camera(
     eps2d: float = 0.3,
     tile_size: int = 8,
     return_instance_alpha: bool = False,
+    motion: Optional[CameraMotion] = None,
 ) -> CameraRender:
     """Render C pinhole cameras: features, alpha, expected/median depth and instance IDs.
 
@@ -85,9 +98,15 @@ def rasterize_camera(
     (CUDA kernels) or ``"auto"`` (gsplat when the inputs are on CUDA and gsplat is installed).
     ``tile_size`` only trades speed against memory in the torch backend; it never changes the
     image. ``return_instance_alpha`` adds the per-instance alpha maps (one channel per distinct
-    ID in ``instance_ids``).
+    ID in ``instance_ids``). ``motion``: rolling shutter, each Gaussian drawn where it is when its
+    line is exposed (:mod:`idsplat_ns.render.rolling_shutter`); None or a global timing renders
+    every Gaussian at the camera's time.
     """
     _check_inputs(means, quats, scales, opacities, features, viewmats, Ks, instance_ids)
+    if motion is not None:
+        _check_motion(motion, means.shape[0], viewmats.shape[0])
+        if motion.is_global():
+            motion = None  # exactly the global-shutter path
     if backend not in ("auto", "torch", "gsplat"):
         raise IDSplatError(f"rasterize_camera: backend={backend!r}; use 'auto', 'torch' or 'gsplat'")
     if backend == "auto":
@@ -98,11 +117,11 @@ def rasterize_camera(
         return rasterize_camera_gsplat(
             means, quats, scales, opacities, features, viewmats, Ks, width, height,
             instance_ids=instance_ids, near_plane=near_plane, far_plane=far_plane,
-            eps2d=eps2d, return_instance_alpha=return_instance_alpha,
+            eps2d=eps2d, return_instance_alpha=return_instance_alpha, motion=motion,
         )  # fmt: skip
     proj = project_gaussians(
         means, quats, scales, viewmats, Ks, width, height,
-        eps2d=eps2d, near_plane=near_plane, far_plane=far_plane,
+        eps2d=eps2d, near_plane=near_plane, far_plane=far_plane, motion=motion,
     )  # fmt: skip
     return rasterize_projected(
         proj, opacities, features, width, height,

@@ -33,10 +33,22 @@ def rasterize_camera_gsplat(
     far_plane: float = 1e10,
     eps2d: float = 0.3,
     return_instance_alpha: bool = False,
+    motion=None,  # Optional[CameraMotion]
 ):
-    """Same outputs as the torch backend, computed by ``gsplat.rasterization`` on CUDA."""
+    """Same outputs as the torch backend, computed by ``gsplat.rasterization`` on CUDA.
+
+    With a rolling-shutter ``motion`` the means are moved to their exposure time per camera
+    (:func:`~idsplat_ns.render.rolling_shutter.shifted_world_means`, the torch path's shift) and
+    the cameras are rendered one by one, since gsplat takes one set of 3D means per call.
+    """
     if not means.is_cuda:
         raise IDSplatError("rasterize_camera: backend='gsplat' needs CUDA tensors; use backend='torch' on CPU")
+    if motion is not None:
+        return _per_camera_shifted(
+            means, quats, scales, opacities, features, viewmats, Ks, width, height, instance_ids=instance_ids,
+            near_plane=near_plane, far_plane=far_plane, eps2d=eps2d, return_instance_alpha=return_instance_alpha,
+            motion=motion,
+        )
     from gsplat import rasterization  # imported here: gsplat's CUDA build is only needed on GPUs
 
     from .camera import CameraRender
@@ -70,3 +82,21 @@ def rasterize_camera_gsplat(
         instance_alpha=inst_alpha if return_instance_alpha else None,
         instance_values=inst_values if return_instance_alpha else None,
     )  # fmt: skip
+
+
+def _per_camera_shifted(means, quats, scales, opacities, features, viewmats, Ks, width, height, *, motion, **kwargs):
+    """Rolling shutter on gsplat: one call per camera with that camera's shifted means, stacked."""
+    from .camera import CameraRender
+    from .rolling_shutter import shifted_world_means
+
+    shifted = shifted_world_means(means, viewmats, Ks, motion, width, height)  # [C, N, 3]
+    parts = [rasterize_camera_gsplat(shifted[c], quats, scales, opacities, features, viewmats[c : c + 1], Ks[c : c + 1],
+                                     width, height, **kwargs) for c in range(viewmats.shape[0])]
+    if kwargs.get("instance_ids") is not None and kwargs.get("return_instance_alpha"):
+        # Every call sees the same instance IDs, so the channels line up.
+        inst_alpha, inst_values = torch.cat([p.instance_alpha for p in parts]), parts[0].instance_values
+    else:
+        inst_alpha, inst_values = None, None
+    cat = {k: torch.cat([getattr(p, k) for p in parts]) for k in
+           ("features", "alpha", "depth", "median_depth", "instance_id", "means2d", "radii", "depths")}
+    return CameraRender(**cat, instance_alpha=inst_alpha, instance_values=inst_values)

@@ -13,10 +13,13 @@ camera plane or with degenerate covariances give finite values and finite (zero)
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Optional
+from typing import TYPE_CHECKING, Optional
 
 import torch
 from torch import Tensor
+
+if TYPE_CHECKING:
+    from .rolling_shutter import CameraMotion
 
 # Radii above this are clamped before the integer conversion (a Gaussian that large covers any
 # image; the clamp only keeps the int32 cast defined).
@@ -90,12 +93,15 @@ def project_gaussians(
     radius_clip: float = 0.0,
     calc_compensations: bool = False,
     covars: Optional[Tensor] = None,  # [N, 3, 3] overrides quats/scales when given
+    motion: Optional["CameraMotion"] = None,
 ) -> Projection:
     """Project 3D Gaussians to C pinhole cameras (gsplat 1.4.0 ``fully_fused_projection``).
 
     Returns a :class:`Projection` with means2d [C,N,2], conics [C,N,3], depths [C,N] and
     int32 radii [C,N] (0 for culled Gaussians: depth outside (near, far), radius <= radius_clip,
     or 3-sigma box outside the image). Differentiable w.r.t. means, quats, scales, viewmats.
+    ``motion``: rolling shutter; each mean is moved to the time its line is exposed
+    (:mod:`idsplat_ns.render.rolling_shutter`). None, or a global timing, is the plain projection.
     """
     # Computed in float64 and returned in the input dtype: the camera gradient sums terms of
     # size ~1e3 per Gaussian that cancel to ~1 (float32 rounding there is as large as the test
@@ -108,6 +114,10 @@ def project_gaussians(
     r = [[rot[:, i, k, None] for k in range(3)] for i in range(3)]  # [C, 1] entries
     mx, my, mz = means.to(f64).unbind(-1)  # [N]
     tx, ty, tz = (r[i][0] * mx + r[i][1] * my + r[i][2] * mz + trans[:, i, None] for i in range(3))  # [C, N]
+    if motion is not None and not motion.is_global():
+        from .rolling_shutter import shift_camera_points
+
+        tx, ty, tz, _ = shift_camera_points(tx, ty, tz, rot, Ks.to(f64), motion, width, height)
     depth_ok = (tz > near_plane) & (tz < far_plane)
     # Culled Gaussians get a dummy depth so that no division below can produce inf/NaN (the
     # double-where keeps their gradients exactly zero).

@@ -7,8 +7,12 @@ small highlight on car paint; distant surfaces fade into the horizon haze. Each 
 
 from __future__ import annotations
 
+from typing import Optional
+
 import numpy as np
 
+from idsplat_ns.data.camera import RollingShutter
+from idsplat_ns.data.rolling_shutter import is_rolling, line_times
 from idsplat_ns.data.synthetic import materials as mat
 from idsplat_ns.data.synthetic import textures
 from idsplat_ns.data.synthetic.raycast import RayCaster, RayHits
@@ -100,18 +104,25 @@ def _mode(values: np.ndarray) -> np.ndarray:
 
 
 def render_camera(
-    caster: RayCaster, camera: PinholeCamera, time: float, supersample: int = 1, shadows: bool = True
+    caster: RayCaster, camera: PinholeCamera, time: float, supersample: int = 1, shadows: bool = True,
+    shutter: Optional[RollingShutter] = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Image uint8 [H, W, 3], instance ids uint16 [H, W] and depth (z, metres) float32 [H, W] at `time`.
 
-    The camera pose is the ego pose at `time` (global shutter). Depth is inf on the sky.
+    Global shutter (``shutter`` None or readout 0): the camera pose is the ego pose at `time`.
+    Rolling shutter: every line (its sub-pixel rays included) is cast at its own time
+    (:func:`idsplat_ns.data.rolling_shutter.line_times`, `time` is the centre line's), from the
+    camera pose at that time, and meets the road users where they are then. Depth is inf on the sky.
     """
-    rot, pos = camera.pose(caster.world, time)
     d_cam = pixel_rays(camera, supersample)
     h, w, k, _ = d_cam.shape
-    dirs = d_cam.reshape(-1, 3) @ rot.T
-    origins = np.broadcast_to(pos, dirs.shape)
-    times = np.full(len(dirs), time)
+    if is_rolling(shutter):
+        dirs, origins, times = _rolling_rays(caster, camera, time, shutter, d_cam)
+    else:
+        rot, pos = camera.pose(caster.world, time)
+        dirs = d_cam.reshape(-1, 3) @ rot.T
+        origins = np.broadcast_to(pos, dirs.shape)
+        times = np.full(len(dirs), time)
     hits = caster.cast(origins, dirs, times)
     rgb = shade(caster, hits, dirs, times, shadows).reshape(h, w, k, 3).mean(2)
     rgb = np.clip(rgb * camera.gain, 0.0, 1.0)
@@ -120,3 +131,17 @@ def render_camera(
     instance = _mode(inst).astype(np.uint16)
     z = (hits.distance * d_cam.reshape(-1, 3)[:, 2]).reshape(h, w, k).mean(2)
     return image, instance, z.astype(np.float32)
+
+
+def _rolling_rays(
+    caster: RayCaster, camera: PinholeCamera, time: float, shutter: RollingShutter, d_cam: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Street-frame directions, origins and times [N, 3], [N, 3], [N] of the rays `d_cam`
+    [H, W, K, 3] when each line is exposed at its own time, from the camera pose at that time."""
+    h, w, k, _ = d_cam.shape
+    axis, tau = line_times(shutter, camera.width, camera.height)
+    rot, pos = camera.poses(caster.world, time + tau)  # [L, 3, 3], [L, 3]
+    line = np.broadcast_to((np.arange(h)[:, None] if axis == 1 else np.arange(w)[None, :])[..., None], (h, w, k))
+    line = line.reshape(-1)
+    dirs = np.einsum("nij,nj->ni", rot[line], d_cam.reshape(-1, 3))
+    return dirs, pos[line], time + tau[line]

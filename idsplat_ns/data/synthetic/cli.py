@@ -7,7 +7,7 @@ import dataclasses
 import time
 from pathlib import Path
 
-from idsplat_ns.data.synthetic.config import PRESETS, SyntheticConfig, get_preset
+from idsplat_ns.data.synthetic.config import PRESETS, ROLLING_SHUTTER_DIRECTIONS, SyntheticConfig, get_preset
 from idsplat_ns.data.synthetic.generate import generate_sequence
 from idsplat_ns.errors import run_cli
 
@@ -32,28 +32,49 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--cyclists", type=int, default=None, help="cyclists in the lanes (default: the preset's; tiny 0, small 1, bench 2)"
     )
+    p.add_argument(
+        "--rolling-shutter-ms", type=float, default=0.0,
+        help="rolling-shutter readout of the cameras, first to last line, milliseconds (default 0: global shutter)",
+    )
+    p.add_argument(
+        "--rolling-shutter-direction", choices=ROLLING_SHUTTER_DIRECTIONS, default="top_to_bottom",
+        help="readout direction of the rolling shutter (default: top_to_bottom)",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
 
 
-def config_from_args(preset: str, pedestrians: int | None, cyclists: int | None) -> SyntheticConfig:
-    """The preset, with the counts of people replaced where given; a changed preset gets its own name
-    (`small_p5c0`), so that its folder does not collide with the preset's."""
+_DIRECTION_CODES = {"top_to_bottom": "", "bottom_to_top": "bt", "left_to_right": "lr", "right_to_left": "rl"}
+
+
+def config_from_args(preset: str, pedestrians: int | None, cyclists: int | None, rolling_shutter_ms: float = 0.0,
+                     rolling_shutter_direction: str = "top_to_bottom") -> SyntheticConfig:
+    """The preset, with the counts of people and the rolling shutter replaced where given; a changed
+    preset gets its own name (`small_p5c0`, `small_rs40`, `small_rs40lr`), so that its folder does
+    not collide with the preset's."""
     config = get_preset(preset)
     counts = {
         "num_pedestrians": config.num_pedestrians if pedestrians is None else pedestrians,
         "num_cyclists": config.num_cyclists if cyclists is None else cyclists,
     }
-    if counts["num_pedestrians"] == config.num_pedestrians and counts["num_cyclists"] == config.num_cyclists:
+    name = config.name
+    if counts["num_pedestrians"] != config.num_pedestrians or counts["num_cyclists"] != config.num_cyclists:
+        name = f"{name}_p{counts['num_pedestrians']}c{counts['num_cyclists']}"
+    cameras = config.cameras
+    if rolling_shutter_ms != 0:
+        cameras = dataclasses.replace(cameras, rolling_shutter_seconds=rolling_shutter_ms / 1e3,
+                                      rolling_shutter_direction=rolling_shutter_direction)
+        name = f"{name}_rs{rolling_shutter_ms:g}{_DIRECTION_CODES.get(rolling_shutter_direction, '')}"
+    if name == config.name:
         return config
-    name = f"{config.name}_p{counts['num_pedestrians']}c{counts['num_cyclists']}"
-    return get_preset(dataclasses.replace(config, name=name, **counts))
+    return get_preset(dataclasses.replace(config, name=name, cameras=cameras, **counts))
 
 
 def _main() -> None:
     args = _parser().parse_args()
     start = time.perf_counter()
-    config = config_from_args(args.preset, args.pedestrians, args.cyclists)
+    config = config_from_args(args.preset, args.pedestrians, args.cyclists, args.rolling_shutter_ms,
+                              args.rolling_shutter_direction)
     path = generate_sequence(
         args.out, config, args.seed, overwrite=args.overwrite, workers=args.workers, progress=not args.quiet
     )

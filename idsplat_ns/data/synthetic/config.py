@@ -17,7 +17,8 @@ CAMERA_NAMES: tuple[str, ...] = ("front_camera", "front_left_camera", "front_rig
 
 @dataclass(frozen=True)
 class CameraRigConfig:
-    """Three pinhole, global-shutter cameras rigidly mounted on the ego vehicle."""
+    """Three pinhole cameras rigidly mounted on the ego vehicle (global shutter unless
+    ``rolling_shutter_seconds`` > 0)."""
 
     image_width: int = 320
     """Image width in pixels."""
@@ -43,6 +44,12 @@ class CameraRigConfig:
     """Cast sun shadows (one shadow ray per lit surface sample)."""
     jpeg_quality: int = 93
     """JPEG quality of the written images."""
+    rolling_shutter_seconds: float = 0.0
+    """Rolling-shutter readout: seconds from the first to the last line's mid-exposure (0: global
+    shutter). Each line is rendered at its own time, from the camera pose at that time, with the
+    road users where they are then; the image time is the centre line's."""
+    rolling_shutter_direction: str = "top_to_bottom"
+    """Readout direction: ``top_to_bottom``, ``bottom_to_top``, ``left_to_right`` or ``right_to_left``."""
 
 
 @dataclass(frozen=True)
@@ -144,8 +151,21 @@ def get_preset(preset: str | SyntheticConfig) -> SyntheticConfig:
     return PRESETS[preset]
 
 
+ROLLING_SHUTTER_DIRECTIONS = ("top_to_bottom", "bottom_to_top", "left_to_right", "right_to_left")
+"""Readout directions the generator can render."""
+_ROLLING_SHUTTER_FIELDS = ("rolling_shutter_seconds", "rolling_shutter_direction")
+
+
 def check_config(config: SyntheticConfig) -> None:
-    """Range checks of the options a user sets (counts of road users)."""
+    """Range checks of the options a user sets (counts of road users, rolling shutter)."""
+    rig = config.cameras
+    period = 1.0 / config.frame_rate
+    if not 0.0 <= rig.rolling_shutter_seconds < period:
+        raise IDSplatError(f"rolling shutter readout {rig.rolling_shutter_seconds * 1e3:g} ms: choose 0 (global) to less "
+                           f"than one frame period, {period * 1e3:g} ms (--rolling-shutter-ms)")
+    if rig.rolling_shutter_direction not in ROLLING_SHUTTER_DIRECTIONS:
+        raise IDSplatError(f"rolling shutter direction {rig.rolling_shutter_direction!r}: choose one of "
+                           f"{', '.join(ROLLING_SHUTTER_DIRECTIONS)} (--rolling-shutter-direction)")
     if not 0 <= config.num_pedestrians <= MAX_PEDESTRIANS:
         raise IDSplatError(f"num_pedestrians={config.num_pedestrians}: choose 0 to {MAX_PEDESTRIANS} (--pedestrians)")
     if not 0 <= config.num_cyclists <= MAX_CYCLISTS:
@@ -153,5 +173,11 @@ def check_config(config: SyntheticConfig) -> None:
 
 
 def config_to_dict(config: SyntheticConfig) -> dict:
-    """The configuration as plain JSON-able data (written to `generator.json`)."""
-    return dataclasses.asdict(config)
+    """The configuration as plain JSON-able data (written to `generator.json`). The rolling-shutter
+    fields are left out while the shutter is global, so streets made before the option existed
+    keep their `generator.json` byte for byte (and stay cache hits)."""
+    out = dataclasses.asdict(config)
+    if config.cameras.rolling_shutter_seconds == 0:
+        for key in _ROLLING_SHUTTER_FIELDS:
+            out["cameras"].pop(key)
+    return out

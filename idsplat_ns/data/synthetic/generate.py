@@ -12,10 +12,12 @@ import multiprocessing
 import os
 import shutil
 from pathlib import Path
+from typing import Optional
 
 import numpy as np
 from tqdm import tqdm
 
+from idsplat_ns.data.camera import RollingShutter
 from idsplat_ns.data.synthetic import writer
 from idsplat_ns.data.synthetic.camera_render import render_camera
 from idsplat_ns.data.synthetic.config import CAMERA_NAMES, SyntheticConfig, config_to_dict, get_preset
@@ -37,8 +39,24 @@ def sequence_name(config: SyntheticConfig, seed: int) -> str:
     return f"synth_{config.name}_{seed}"
 
 
+ROLLING_SHUTTER_FILE = "rolling_shutter.json"
+"""In `idsplat_extras/`: each camera's rolling-shutter readout, written only when it is not global."""
+
+
+def rolling_shutter_of(config: SyntheticConfig) -> Optional[RollingShutter]:
+    """The cameras' rolling shutter (all three share it); None for a global shutter."""
+    rig = config.cameras
+    if rig.rolling_shutter_seconds <= 0:
+        return None
+    return RollingShutter(readout_seconds=rig.rolling_shutter_seconds, direction=rig.rolling_shutter_direction)
+
+
 def generator_record(config: SyntheticConfig, seed: int) -> dict:
     """Contents of `idsplat_extras/generator.json`: what made the sequence and its conventions."""
+    camera_time = "frame time + fixed per-camera offset, global shutter"
+    if rolling_shutter_of(config) is not None:
+        camera_time = ("frame time + fixed per-camera offset = mid-exposure of the centre line; rolling shutter, "
+                       f"each line at its own time (idsplat_extras/{ROLLING_SHUTTER_FILE})")
     return {
         "generator": GENERATOR_NAME,
         "version": GENERATOR_VERSION,
@@ -50,7 +68,7 @@ def generator_record(config: SyntheticConfig, seed: int) -> dict:
             "lidar_pose": "lidar-to-world at the sweep time, axes x right, y forward, z up",
             "lidar_sweep": "one rotation over [t - period/2, t + period/2), azimuth counter-clockwise from the "
             "sensor's right, starting behind; per-point t",
-            "camera_time": "frame time + fixed per-camera offset, global shutter",
+            "camera_time": camera_time,
             "pixel_centres": "pixel (i, j) is the ray through (i + 0.5, j + 0.5)",
             "cuboid_time": "cuboids are at the lidar sweep time (lidar/timestamps.json)",
         },
@@ -121,7 +139,8 @@ def _make_frame(k: int) -> dict:
     out: dict = {"cameras": {}}
     for cam in _STATE["cameras"]:
         t_img = t + cam.time_offset
-        image, instance, _ = render_camera(caster, cam, t_img, cfg.cameras.supersample, cfg.cameras.shadows)
+        image, instance, _ = render_camera(caster, cam, t_img, cfg.cameras.supersample, cfg.cameras.shadows,
+                                           rolling_shutter_of(cfg))
         writer.write_jpeg(tmp / "camera" / cam.name / f"{name}.jpg", image, cfg.cameras.jpeg_quality)
         write_instance_map(tmp / "idsplat_extras" / "instance_masks" / cam.name / f"{name}.png", instance)
         rot, pos = cam.pose(world, t_img)
@@ -271,6 +290,12 @@ def _write_sequence_files(config: SyntheticConfig, seed: int, tmp: Path, frames:
         str(v.instance_id): {"uuid": v.uuid, "label": v.label, "moving": v.moving} for v in world.road_users
     }
     writer.write_json(tmp / "idsplat_extras" / "instances.json", instances)
+    shutter = rolling_shutter_of(config)
+    if shutter is not None:
+        writer.write_json(tmp / "idsplat_extras" / ROLLING_SHUTTER_FILE, {
+            cam.name: {"readout_seconds": shutter.readout_seconds, "direction": shutter.direction}
+            for cam in cameras(config)
+        })
     writer.write_json(tmp / "idsplat_extras" / "generator.json", record)
 
 

@@ -61,6 +61,12 @@ class PinholeCamera:
         rot, pos = world.ego_pose(np.array([t]))
         return rot[0] @ self.ego_from_camera, pos[0] + rot[0] @ self.mount
 
+    def poses(self, world: World, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Street-from-camera rotations [K, 3, 3] and positions [K, 3] at times `t` [K] (the lines
+        of a rolling-shutter image)."""
+        rot, pos = world.ego_pose(np.asarray(t, dtype=np.float64))
+        return rot @ self.ego_from_camera, pos + rot @ self.mount
+
 
 def cameras(config: SyntheticConfig) -> list[PinholeCamera]:
     """The three cameras of the rig."""
