@@ -216,3 +216,29 @@ def test_one_line_error_of_a_step(tmp_path: Path) -> None:
     assert one_line_error(log, 2) == "Unrecognized options: --nope, 1"
     log.write_text("step 12\n")
     assert one_line_error(log, -9).startswith("killed by SIGKILL (out of memory?")
+
+
+def test_a_local_ray_that_times_out_at_startup_is_started_again(monkeypatch) -> None:
+    import types
+
+    from idsplat_ns.batch.runner import STARTUP_ATTEMPTS, RayStart, start_ray
+    from idsplat_ns.errors import IDSplatError
+
+    calls = []
+
+    def fake_ray(fail_times: int):
+        def init(**kwargs):
+            calls.append("init")
+            if calls.count("init") <= fail_times:
+                raise Exception("The current node timed out during startup. This could happen because ...")
+
+        return types.SimpleNamespace(init=init, shutdown=lambda: calls.append("shutdown"))
+
+    monkeypatch.setitem(sys.modules, "ray", fake_ray(1))
+    start_ray(RayStart())
+    assert calls == ["init", "shutdown", "init"]
+    calls.clear()
+    monkeypatch.setitem(sys.modules, "ray", fake_ray(10))
+    with pytest.raises(IDSplatError, match="did not start in 3 tries"):
+        start_ray(RayStart())
+    assert calls.count("init") == STARTUP_ATTEMPTS == 3

@@ -64,6 +64,10 @@ class Outcome:
     """Sequence -> ``<step>: <one-line error>``."""
 
 
+STARTUP_ATTEMPTS = 3
+"""Tries to start a local Ray before giving up."""
+
+
 def start_ray(start: RayStart) -> None:
     """Connect to ``start.address`` or start a local Ray instance sized for this command."""
     import logging
@@ -73,15 +77,28 @@ def start_ray(start: RayStart) -> None:
     # Read at start-up by this process and the Ray processes it spawns: no usage report is sent.
     os.environ["RAY_USAGE_STATS_ENABLED"] = "0"
     common = {"logging_level": logging.WARNING, "log_to_driver": False, "configure_logging": True}
-    try:
-        if start.address is not None:
+    if start.address is not None:
+        try:
             ray.init(address=start.address, **common)
-        else:
+        except ConnectionError as err:
+            raise IDSplatError(f"--address {start.address}: cannot connect to a Ray cluster ({err}); start one with "
+                               "`ray start --head` or drop --address") from None
+        return
+    # A local Ray gives its raylet a fixed 30 s to register; on a loaded machine that can run out,
+    # and a second start usually makes it.
+    for attempt in range(STARTUP_ATTEMPTS):
+        try:
             ray.init(num_cpus=start.num_cpus or os.cpu_count(), num_gpus=start.num_gpus, include_dashboard=False,
                      object_store_memory=start.object_store_mb * 2**20, **common)
-    except ConnectionError as err:
-        raise IDSplatError(f"--address {start.address}: cannot connect to a Ray cluster ({err}); start one with "
-                           "`ray start --head` or drop --address") from None
+            return
+        except Exception as err:  # Ray raises a bare Exception for this timeout
+            if "timed out during startup" not in str(err):
+                raise
+            ray.shutdown()
+            if attempt == STARTUP_ATTEMPTS - 1:
+                raise IDSplatError(f"a local Ray did not start in {STARTUP_ATTEMPTS} tries (its raylet has 30 s to "
+                                   "register; the machine is overloaded); run again when it is less busy, or "
+                                   "start one with `ray start --head` and pass --address auto") from None
 
 
 def check_feasible(resources: dict[str, dict]) -> None:
