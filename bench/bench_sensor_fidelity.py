@@ -37,7 +37,7 @@ VARIANTS = {
                       "--pipeline.datamanager.preprocess.masks.kind", "ground-truth",
                       "--pipeline.datamanager.preprocess.lifting.rolling-shutter", "False"],
 }
-COLUMNS = (("psnr", "PSNR"), ("ssim", "SSIM"), ("dpsnr", "DPSNR"))
+COLUMNS = (("psnr", "PSNR"), ("ssim", "SSIM"), ("dpsnr", "DPSNR"), ("mota@2m", "MOTA@2m"))
 
 
 def _run(cmd: list[str]) -> float:
@@ -69,13 +69,15 @@ def main() -> None:
         name = f"{street.name}-{args.steps}{args.tag}-{variant}"
         run_dir = args.output_dir / name / "idsplat-fast" / "run"
         eval_json = args.output_dir / name / "eval.json"
-        train_s = float("nan")
+        timing = args.output_dir / name / "train_seconds.json"
+        train_s = json.loads(timing.read_text())["train_s"] if timing.is_file() else float("nan")
         if not (args.skip_existing and eval_json.is_file()):
             train_s = _run([
                 str(BIN / "ns-train"), "idsplat-fast", "--vis", "tensorboard", "--output-dir", str(args.output_dir),
                 "--experiment-name", name, "--timestamp", "run", "--max-num-iterations", str(args.steps),
                 *VARIANTS[variant], *shlex.split(args.train_args), "idsplat-pandaset", "--data", str(street),
             ])
+            timing.write_text(json.dumps({"train_s": train_s}))
             _run([str(BIN / "ns-eval"), "--load-config", str(run_dir / "config.yml"), "--output-path", str(eval_json)])
         results = json.loads(eval_json.read_text())["results"]
         results["train_s"] = train_s
