@@ -118,6 +118,31 @@ def test_lifting_paints_points_through_the_rolling_shutter(tmp_path: Path):
     assert sum(len(o.points) for o in off.observations.get(1, [])) == 0
 
 
+def test_painted_pixels_stay_inside_the_image_in_float32(tmp_path: Path):
+    # u = W - 1e-6 is inside in float64 but rounds to W in float32, outside any descriptor's image.
+    from idsplat_ns.data.images import write_instance_map
+    from idsplat_ns.instances.lifting import LiftingConfig, paint_points
+    from idsplat_ns.instances.masks.base import InstanceMaskSet, mask_filename
+
+    image = _sideways_camera(0.0, None, times=(0.0,))[0]
+    Z = 10.0
+    cam_xyz = np.array([[(W - 1e-6 - W / 2) * Z / F, 0.1 * k, Z] for k in range(12)])
+    pts = _camera_coords_to_world(cam_xyz, image)
+    origins = np.broadcast_to(image.camera_to_world[:3, 3], pts.shape).copy()
+    d, r = rays_from_points(origins, pts)
+    n = len(pts)
+    sweep = LidarSweep(frame_index=0, time=0.0, raw_timestamp=0.0, sensor_to_world=image.camera_to_world,
+                       origins=origins, directions=d, ranges=r, intensities=np.zeros(n, np.float32),
+                       times=np.zeros(n), returned=np.ones(n, bool), sensor_ids=np.zeros(n, np.int16))
+    write_instance_map(tmp_path / mask_filename("cam", 0), np.ones((H, W), np.uint16))
+    scene = Scene(name="edge", source="synthetic", root=None, frame_indices=np.arange(1), frame_times=np.zeros(1),
+                  ego_poses=image.camera_to_world[None], images=[image], lidar=[sweep])
+    painted, _, _ = paint_points(scene, InstanceMaskSet(tmp_path, {1: "car"}, "precomputed"), LiftingConfig(erosion_px=0),
+                                 progress=False)
+    uv = painted[0][1][0][2]
+    assert len(uv) == 12 and uv.dtype == np.float32 and (uv[:, 0] < W).all()
+
+
 def _rs_config(frames: int = 2, readout: float = 0.04, direction: str = "top_to_bottom"):
     from idsplat_ns.data.synthetic import get_preset
 

@@ -208,9 +208,11 @@ def paint_points(scene: Scene, masks: InstanceMaskSet, config: LiftingConfig, pr
         row = np.clip((proj.uv[idx, 1] * sy).astype(np.int64), 0, ids.shape[0] - 1)
         hit = eroded[row, col]
         co_visible.append(set(np.unique(ids[ids > 0]).tolist()))
+        # float32 can round a coordinate just inside the image up onto its edge: keep it inside.
+        inside = np.nextafter(np.array([image.intrinsics.width, image.intrinsics.height], np.float32), np.float32(0))
         for k in np.unique(hit[hit > 0]):
             sel = hit == k
-            painted[frame][int(k)].append((idx[sel], img_idx, proj.uv[idx[sel]].astype(np.float32)))
+            painted[frame][int(k)].append((idx[sel], img_idx, np.minimum(proj.uv[idx[sel]].astype(np.float32), inside)))
     return painted, co_visible, sweep_cache
 
 
