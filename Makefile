@@ -30,7 +30,7 @@ browser:
 		|| echo "note: no Chromium (apt-get install -y chromium); tests/test_viewer_browser.py will fail"
 
 test: install browser
-	$(BIN)/python -m pytest -q -p no:cacheprovider
+	$(BIN)/python -m pytest -q -p no:cacheprovider --durations=25
 
 test-fast: install
 	$(BIN)/python -m pytest -q -p no:cacheprovider -m "not slow"

@@ -58,6 +58,8 @@ def _optimizers(max_steps: int, warmup_scale: float = 1.0) -> dict:
         # Instance trajectories (absent in static scenes; nerfstudio ignores unused groups).
         "trajectory_positions": group(1e-3, 1e-4, warmup=1500),
         "trajectory_rotations": group(5e-5, 1e-6, warmup=1500),
+        # Not in the paper: the deformation of pedestrians and cyclists (off unless enabled).
+        "deformation": group(1e-3, 1e-4),
     }
 
 

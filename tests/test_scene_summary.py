@@ -202,3 +202,40 @@ def test_a_camera_without_training_images_gets_no_embedding(trained):
     assert s.cameras_unused == [names[1]] and s.cameras_used == [names[0], names[2]]
     assert s.embedding_parameters == 2 * 8 and model.scene_model.sensor_rows == [0, -1, 1]
     assert s.camera_time_offset_parameters == 2
+
+
+def test_only_pedestrians_and_cyclists_deform_and_checkpoints_keep_the_choice(trained):
+    from nerfstudio.engine.optimizers import Optimizers
+
+    from idsplat_ns.model.deformation import DeformationConfig
+
+    trainer, cfg, _ = trained
+    dm = trainer.pipeline.datamanager
+    tracks = dm.train_dataset.metadata["instance_tracks"]
+    walker = replace(tracks.instances[0], label="pedestrian")
+    with_people = replace(tracks, instances=[walker] + tracks.instances[1:])
+
+    def build(enabled: bool, **meta):
+        model_cfg = replace(cfg.pipeline.model, deformation=DeformationConfig(enabled=enabled))
+        return model_cfg.setup(scene_box=dm.train_dataset.scene_box, num_train_data=len(dm.train_dataset),
+                               metadata={**dm.train_dataset.metadata, **meta}, device="cpu", grad_scaler=None)
+
+    assert build(True).scene_model.deformation is None  # cars only: nothing deforms
+    model = build(True, instance_tracks=with_people)
+    deform = model.scene_model.deformation
+    assert deform.instance_ids.tolist() == [walker.instance_id]
+    s = model.scene_summary()
+    assert s.deformable_instances == [walker.instance_id]
+    assert s.parameters["deformation"] == sum(p.numel() for p in deform.parameters())
+    Optimizers(cfg.optimizers, model.get_param_groups())  # the method has an optimiser for the group
+    with torch.no_grad():
+        deform.mlp[-1].bias.fill_(0.3)
+    # ns-eval builds the model without instances' settings and takes the checkpoint's shape.
+    loaded = build(False, instance_tracks=with_people, test_mode="test")
+    assert loaded.scene_model.deformation is None
+    loaded.load_state_dict(model.state_dict())
+    t = float(tracks.frame_times[1])
+    assert torch.equal(loaded.scene_model.posed_gaussians(t)["means"], model.scene_model.posed_gaussians(t)["means"])
+    rigid = build(True, instance_tracks=with_people, test_mode="test")
+    rigid.load_state_dict(trainer.pipeline.model.state_dict())
+    assert rigid.scene_model.deformation is None

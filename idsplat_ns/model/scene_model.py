@@ -5,7 +5,8 @@ Static Gaussians (instance ID 0) live in the world frame; Gaussians of instance 
 canonical frame and are moved by k's trajectory pose at the render time; an instance whose
 trajectory does not span the render time is absent (its Gaussians are not rendered).
 
-Optional parts: the lidar head (2-layer MLP decoding composited features into intensity and
+Optional parts: a deformation of non-rigid instances (pedestrians, cyclists; model/deformation.py),
+the lidar head (2-layer MLP decoding composited features into intensity and
 ray-drop logit; only for scenes with lidar) and per-camera learnable time offsets (seconds, added
 to each camera's render time; only when there are instances whose poses depend on the time).
 Sensor embeddings and time offsets exist only for the cameras that have training images
@@ -56,16 +57,20 @@ class SceneModel(nn.Module):
     def __init__(self, gaussians: GaussianSet, num_sensors: int, decoder: DecoderConfig,
                  trajectories: Optional[nn.Module] = None, background=(0.5, 0.5, 0.5), *,
                  lidar_head_hidden: Optional[int] = None, camera_time_offsets: bool = False,
-                 embedded_sensors: Optional[Sequence[int]] = None, view_directions: bool = False) -> None:
+                 embedded_sensors: Optional[Sequence[int]] = None, view_directions: bool = False,
+                 deformation: Optional[nn.Module] = None) -> None:
         """``lidar_head_hidden``: hidden width of the lidar head (None: no lidar head, camera-only
         scene). ``camera_time_offsets``: learn a time offset per camera (only with trajectories).
         ``embedded_sensors``: the sensor indices (of ``num_sensors``) that get an embedding and a
         time offset, in row order (None: all). ``view_directions``: the RGB decoder also takes
-        each pixel's world-frame ray direction (view-dependent colour)."""
+        each pixel's world-frame ray direction (view-dependent colour). ``deformation``: an
+        :class:`~idsplat_ns.model.deformation.InstanceDeformation` for non-rigid instances (None:
+        every instance rigid)."""
         super().__init__()
         self.decoder_config = decoder
         self.gaussians = gaussians
         self.trajectories = trajectories
+        self.deformation = deformation
         embedded = list(range(num_sensors)) if embedded_sensors is None else sorted(set(int(s) for s in embedded_sensors))
         if any(not 0 <= s < num_sensors for s in embedded):
             raise ValueError(f"SceneModel: embedded_sensors {embedded} outside 0..{num_sensors - 1}")
@@ -141,7 +146,10 @@ class SceneModel(nn.Module):
             R, t, present, linear, angular = self.trajectories.motion_at(time)
         else:
             R, t, present = self.trajectories.poses_at(time)
-        means, quats, keep = compose_gaussians(g["means"], g["quats"], ids, R, t, present, traj_ids)
+        canonical = g["means"]
+        if self.deformation is not None:
+            canonical = canonical + self.deformation.offsets(canonical, ids, time)
+        means, quats, keep = compose_gaussians(canonical, g["quats"], ids, R, t, present, traj_ids)
         out = {k: v[keep] for k, v in g.items() if k not in ("means", "quats")}
         out = out | {"means": means, "quats": quats, "instance_ids": ids[keep]}
         if with_velocities:

@@ -54,6 +54,7 @@ class SceneSummary:
     embedding_parameters: int
     camera_time_offset_parameters: int
     step: Optional[int] = None  # training step of the counts (None: before training)
+    deformable_instances: list[int] = field(default_factory=list)  # moving and non-rigid (model/deformation.py)
     notes: list[str] = field(default_factory=list)
 
 
@@ -94,6 +95,7 @@ def summarise(
     embedding: nn.Module,
     camera_time_offset: Optional[nn.Parameter],
     step: Optional[int] = None,
+    deformation: Optional[nn.Module] = None,
 ) -> SceneSummary:
     """Collect the summary from the parts of a built model (see :mod:`idsplat_ns.nerfstudio.model`)."""
     moving = [] if trajectories is None else [int(i) for i in trajectories.instance_ids.tolist()]
@@ -117,6 +119,7 @@ def summarise(
         embedding_parameters=int(sum(p.numel() for p in embedding.parameters())),
         camera_time_offset_parameters=0 if camera_time_offset is None else int(camera_time_offset.numel()),
         step=step,
+        deformable_instances=[] if deformation is None else [int(i) for i in deformation.instance_ids.tolist()],
         notes=notes,
     )
 
@@ -142,6 +145,9 @@ def summary_lines(s: SceneSummary) -> list[str]:
     else:
         inst = f"instances ({s.instance_mode}): none moving -> no trajectory parameters, no camera time offsets"
     lines = [cams, lidar, inst]
+    if s.deformable_instances:
+        lines.append(f"  non-rigid: {_ids(s.deformable_instances)} deform over time "
+                     f"({s.parameters.get('deformation', 0)} parameters, --pipeline.model.deformation)")
     for st in s.static_instances:
         lines.append(f"  instance {st.instance_id} ({st.label}) static, no trajectory: {st.reason}")
     lines += [f"  note: {n}" for n in s.notes]

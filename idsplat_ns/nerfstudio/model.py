@@ -28,6 +28,7 @@ from idsplat_ns.data.images import load_rgb
 from idsplat_ns.eval.image_metrics import psnr, ssim
 from idsplat_ns.instances.static_conversion import StaticConversionConfig, convert_static_instances
 from idsplat_ns.model.camera_shutter import ShutterLookup
+from idsplat_ns.model.deformation import DeformationConfig, InstanceDeformation, deformable_instance_ids
 from idsplat_ns.model.gaussians import GaussianSet
 from idsplat_ns.model.initialisation import InitConfig
 from idsplat_ns.model.instance_palette import instance_colors
@@ -106,6 +107,8 @@ class IDSplatModelConfig(ModelConfig):
     """Render each recorded image with its rolling shutter where the data gives one (Waymo, the
     built-in street made with ``--rolling-shutter-ms``): each Gaussian is drawn where it is when its
     line is exposed. No effect on global-shutter data (PandaSet). False: the ablation."""
+    deformation: DeformationConfig = field(default_factory=DeformationConfig)
+    """Non-rigid instances: a time-dependent offset of each Gaussian of a pedestrian or cyclist."""
     view_directions: bool = True
     """View-dependent colour: the RGB decoder also takes each pixel's world-frame ray direction, as
     in SplatAD, whose decoder the paper adopts (False: the ablation; a checkpoint keeps the choice
@@ -150,7 +153,7 @@ class IDSplatModel(Model):
             lidar_head_hidden=self.config.lidar.head_hidden if lidar_sweeps else None,
             camera_time_offsets=self.config.learn_camera_time_offsets,
             embedded_sensors=[i for i, name in enumerate(self.camera_names) if name in self.used_cameras],
-            view_directions=self.config.view_directions,
+            view_directions=self.config.view_directions, deformation=self._deformation(trajectories, tracks),
         )
         self.shutters = ShutterLookup(scene.images, self.camera_names) if self.config.rolling_shutter else None
         self.lidar = LidarSupervisor(lidar_sweeps, self.config.lidar, seed=self.config.init_seed) if lidar_sweeps else None
@@ -175,6 +178,17 @@ class IDSplatModel(Model):
         if metadata.get("test_mode", "val") == "val":
             CONSOLE.print("[bold]IDSplat models:[/bold]\n  " + "\n  ".join(summary_lines(self.scene_summary())), soft_wrap=True)
 
+    def _deformation(self, trajectories, tracks) -> Optional[InstanceDeformation]:
+        """The deformation of the instances of the configured classes (None: off, or none of them)."""
+        cfg = self.config.deformation
+        if not cfg.enabled or trajectories is None:
+            return None
+        ids = deformable_instance_ids(tracks, tuple(cfg.classes))
+        if not ids:
+            return None
+        return InstanceDeformation(trajectories.frame_times.cpu().numpy(), np.array(ids), cfg.latent_dim, cfg.hidden,
+                                   cfg.position_freqs, seed=self.config.init_seed)
+
     def scene_summary(self, step: Optional[int] = None) -> SceneSummary:
         """What is modelled and why (cameras, lidar, instances, Gaussians and parameters per group)."""
         sm = self.scene_model
@@ -183,7 +197,7 @@ class IDSplatModel(Model):
             lidar_head=sm.lidar_head, instance_mode=self.instance_mode, tracks=self.instance_tracks,
             trajectories=sm.trajectories, static_config=self.static_config, instance_ids=self.gaussians.instance_ids,
             groups=self.get_param_groups(), embedding=sm.sensor_embedding, camera_time_offset=sm.camera_time_offset,
-            step=step,
+            step=step, deformation=sm.deformation,
         )
 
     def _initial_gaussians(self, scene, train_images, tracks) -> GaussianSet:
@@ -260,6 +274,8 @@ class IDSplatModel(Model):
         if sm.trajectories is not None:
             groups["trajectory_positions"] = list(sm.trajectories.position_parameters())
             groups["trajectory_rotations"] = list(sm.trajectories.rotation_parameters())
+        if sm.deformation is not None:
+            groups["deformation"] = list(sm.deformation.parameters())
         return groups
 
     def load_state_dict(self, state_dict, strict: bool = True, **kwargs):  # type: ignore[override]
@@ -268,6 +284,7 @@ class IDSplatModel(Model):
             self.gaussians.resize_(num)
         self.step = 10**9  # a loaded model renders at full resolution
         rebuilt = self._trajectories_like(state_dict)
+        self._deformation_like(state_dict)
         self.scene_model.decoder_like(state_dict, prefix="scene_model.")
         out = super().load_state_dict(state_dict, strict=strict, **kwargs)
         if rebuilt:
@@ -296,6 +313,22 @@ class IDSplatModel(Model):
         if "scene_model.camera_time_offset" in state_dict and sm.camera_time_offset is None:
             sm.camera_time_offset = nn.Parameter(torch.zeros_like(state_dict["scene_model.camera_time_offset"]))
         return True
+
+    def _deformation_like(self, state_dict) -> None:
+        """Give the model the checkpoint's deformation (or none), whatever today's settings say."""
+        sm = self.scene_model
+        codes = state_dict.get("scene_model.deformation.codes")
+        if codes is None:
+            sm.deformation = None
+            return
+        D, F, C = codes.shape
+        hidden = int(state_dict["scene_model.deformation.mlp.0.weight"].shape[0])
+        freqs = (int(state_dict["scene_model.deformation.mlp.0.weight"].shape[1]) - C - 3) // 6
+        current = sm.deformation
+        if current is not None and tuple(current.codes.shape) == (D, F, C) and current.mlp[0].out_features == hidden \
+                and current.position_freqs == freqs:
+            return
+        sm.deformation = InstanceDeformation.placeholder(D, F, C, hidden, freqs).to(self.device)
 
     # --- rendering ----------------------------------------------------------------------------
     def _camera_inputs(self, camera: Cameras, downscale: int) -> tuple[Tensor, Tensor, int, int]:

@@ -16,12 +16,14 @@ from typing import Type
 from nerfstudio.engine.trainer import TrainerConfig
 
 from idsplat_ns.errors import register_run_dir
+from idsplat_ns.nerfstudio.config_defaults import FillsMissingFieldsOnLoad
 from idsplat_ns.nerfstudio.settings_checks import validate_settings
 
 
 @dataclass
-class IDSplatTrainerConfig(TrainerConfig):
-    """nerfstudio's TrainerConfig whose ``save_config`` validates the settings first."""
+class IDSplatTrainerConfig(FillsMissingFieldsOnLoad, TrainerConfig):
+    """nerfstudio's TrainerConfig whose ``save_config`` validates the settings first, and whose
+    ``config.yml`` from an older version loads with the defaults of the settings added since."""
 
     _target: Type = field(default_factory=lambda: _trainer_class())
 
