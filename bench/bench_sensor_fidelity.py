@@ -17,14 +17,10 @@ so every figure can be reproduced one by one.
 from __future__ import annotations
 
 import argparse
-import json
-import shlex
-import subprocess
-import sys
-import time
 from pathlib import Path
 
-BIN = Path(sys.executable).parent
+from _train_variants import print_table, synth_street, train_and_evaluate  # bench/ is on the path as a script
+
 VARIANTS = {
     "full": ["--pipeline.datamanager.instance-mode", "oracle"],
     "no-rs": ["--pipeline.datamanager.instance-mode", "oracle", "--pipeline.model.rolling-shutter", "False"],
@@ -38,13 +34,6 @@ VARIANTS = {
                       "--pipeline.datamanager.preprocess.lifting.rolling-shutter", "False"],
 }
 COLUMNS = (("psnr", "PSNR"), ("ssim", "SSIM"), ("dpsnr", "DPSNR"), ("mota@2m", "MOTA@2m"))
-
-
-def _run(cmd: list[str]) -> float:
-    print("$ " + " ".join(cmd), flush=True)
-    start = time.perf_counter()
-    subprocess.run(cmd, check=True)
-    return time.perf_counter() - start
 
 
 def main() -> None:
@@ -62,32 +51,11 @@ def main() -> None:
     args = ap.parse_args()
     data_dir = args.output_dir / "data"
     street = data_dir / f"synth_{args.preset}_rs{args.readout_ms:g}_{args.seed}"
-    _run([str(BIN / "idsplat-synth"), "--preset", args.preset, "--seed", str(args.seed), "--rolling-shutter-ms",
-          f"{args.readout_ms:g}", "--out", str(data_dir), "--quiet"])  # a cache hit when it exists
-    rows = {}
-    for variant in args.variants:
-        name = f"{street.name}-{args.steps}{args.tag}-{variant}"
-        run_dir = args.output_dir / name / "idsplat-fast" / "run"
-        eval_json = args.output_dir / name / "eval.json"
-        timing = args.output_dir / name / "train_seconds.json"
-        train_s = json.loads(timing.read_text())["train_s"] if timing.is_file() else float("nan")
-        if not (args.skip_existing and eval_json.is_file()):
-            train_s = _run([
-                str(BIN / "ns-train"), "idsplat-fast", "--vis", "tensorboard", "--output-dir", str(args.output_dir),
-                "--experiment-name", name, "--timestamp", "run", "--max-num-iterations", str(args.steps),
-                *VARIANTS[variant], *shlex.split(args.train_args), "idsplat-pandaset", "--data", str(street),
-            ])
-            timing.write_text(json.dumps({"train_s": train_s}))
-            _run([str(BIN / "ns-eval"), "--load-config", str(run_dir / "config.yml"), "--output-path", str(eval_json)])
-        results = json.loads(eval_json.read_text())["results"]
-        results["train_s"] = train_s
-        rows[variant] = results
-    header = ["variant"] + [title for _, title in COLUMNS] + ["train wall s"]
-    print("\n| " + " | ".join(header) + " |")
-    print("|" + "---|" * len(header))
-    for variant, r in rows.items():
-        cells = [variant] + [f"{r[k]:.3f}" if k in r else "-" for k, _ in COLUMNS] + [f"{r['train_s']:.0f}"]
-        print("| " + " | ".join(cells) + " |")
+    synth_street(data_dir, args.preset, args.seed, "--rolling-shutter-ms", f"{args.readout_ms:g}")
+    rows = {variant: train_and_evaluate(street, f"{street.name}-{args.steps}{args.tag}-{variant}", args.output_dir,
+                                        args.steps, VARIANTS[variant], args.train_args, args.skip_existing)
+            for variant in args.variants}
+    print_table(rows, COLUMNS)
 
 
 if __name__ == "__main__":

@@ -1,0 +1,59 @@
+"""Train and evaluate named variants of ``idsplat-fast`` on one street with the plain commands a
+user would type (each printed before it runs), and print their results side by side. Shared by
+``bench_sensor_fidelity.py`` and ``bench_deformation.py``."""
+
+from __future__ import annotations
+
+import json
+import shlex
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+BIN = Path(sys.executable).parent
+
+
+def run(cmd: list[str]) -> float:
+    """Run ``cmd`` (printed first); its wall time in seconds."""
+    print("$ " + " ".join(cmd), flush=True)
+    start = time.perf_counter()
+    subprocess.run(cmd, check=True)
+    return time.perf_counter() - start
+
+
+def synth_street(data_dir: Path, preset: str, seed: int, *extra: str) -> None:
+    """``idsplat-synth`` into ``data_dir`` (a cache hit when the street exists)."""
+    run([str(BIN / "idsplat-synth"), "--preset", preset, "--seed", str(seed), *extra, "--out", str(data_dir), "--quiet"])
+
+
+def train_and_evaluate(street: Path, name: str, output_dir: Path, steps: int, options: list[str], train_args: str = "",
+                       skip_existing: bool = False) -> dict:
+    """``ns-train idsplat-fast`` with ``options`` into ``output_dir/name``, then ``ns-eval``; the
+    results of eval.json plus ``train_s`` (training wall time). With ``skip_existing`` a run whose
+    eval.json exists is read, not repeated."""
+    run_dir = output_dir / name / "idsplat-fast" / "run"
+    eval_json = output_dir / name / "eval.json"
+    timing = output_dir / name / "train_seconds.json"
+    if not (skip_existing and eval_json.is_file()):
+        if not (skip_existing and timing.is_file() and (run_dir / "config.yml").is_file()):
+            train_s = run([
+                str(BIN / "ns-train"), "idsplat-fast", "--vis", "tensorboard", "--output-dir", str(output_dir),
+                "--experiment-name", name, "--timestamp", "run", "--max-num-iterations", str(steps),
+                *options, *shlex.split(train_args), "idsplat-pandaset", "--data", str(street),
+            ])
+            timing.write_text(json.dumps({"train_s": train_s}))
+        run([str(BIN / "ns-eval"), "--load-config", str(run_dir / "config.yml"), "--output-path", str(eval_json)])
+    results = json.loads(eval_json.read_text())["results"]
+    results["train_s"] = json.loads(timing.read_text())["train_s"] if timing.is_file() else float("nan")
+    return results
+
+
+def print_table(rows: dict[str, dict], columns: tuple[tuple[str, str], ...], first: str = "variant") -> None:
+    """A markdown table: one row per entry of ``rows``, the ``columns`` (key, title), training time."""
+    header = [first] + [title for _, title in columns] + ["train wall s"]
+    print("\n| " + " | ".join(header) + " |")
+    print("|" + "---|" * len(header))
+    for name, r in rows.items():
+        cells = [name] + [f"{r[k]:.3f}" if k in r else "-" for k, _ in columns] + [f"{r['train_s']:.0f}"]
+        print("| " + " | ".join(cells) + " |")
