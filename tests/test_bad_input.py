@@ -24,6 +24,8 @@ from typing import Callable
 import numpy as np
 import pandas as pd
 import pytest
+import scipy.linalg
+from scipy.spatial.transform import Rotation
 
 from idsplat_ns.data.pandaset import load_sequence
 from idsplat_ns.errors import IDSplatError, register_run_dir, remove_failed_runs
@@ -143,14 +145,15 @@ def test_damaged_pandaset_fails_in_one_line(street_copy: Path, damage, file: str
 
 
 def test_slightly_off_quaternion_is_renormalised_with_a_warning(street_copy: Path, capsys) -> None:
+    undamaged = load_sequence(street_copy)
     path = street_copy / CAM / "poses.json"
     poses = json.loads(path.read_text())
     for entry in poses:  # a stored quaternion scaled by 1.01: a precision loss, not damage
         entry["heading"] = {k: v * 1.01 for k, v in entry["heading"].items()}
     path.write_text(json.dumps(poses))
     scene = load_sequence(street_copy)
-    R = scene.images[0].camera_to_world[:3, :3]
-    assert np.allclose(R.T @ R, np.eye(3), atol=1e-9)
+    for image, before in zip(scene.images, undamaged.images):  # a scaled quaternion is the same rotation
+        assert np.allclose(image.camera_to_world, before.camera_to_world, atol=1e-9)
     err = capsys.readouterr().err
     assert err.count("warning:") == 1 and "renormalised" in err and "poses.json" in err
 
@@ -163,7 +166,9 @@ def test_rotation_checks() -> None:
     R = np.eye(3)
     R[0, 1] = 1e-3  # slightly off: projected back onto SO(3)
     fixed = check_rotation(R, "f.json", "pose", 0)
-    assert np.allclose(fixed.T @ fixed, np.eye(3), atol=1e-12)
+    assert np.allclose(fixed, scipy.linalg.polar(R)[0], atol=1e-12)  # the nearest rotation
+    exact = Rotation.from_rotvec([0.3, -0.2, 1.1]).as_matrix()
+    assert np.array_equal(check_rotation(exact, "f.json", "pose", 0), exact)  # within tolerance: unchanged
     with pytest.raises(IDSplatError, match=r"f.json: frame 2: pose: not a rotation"):
         check_rotation(np.diag([1.0, 1.0, -1.0]), "f.json", "pose", 2)  # a reflection
     bad = np.eye(4)

@@ -72,9 +72,18 @@ def test_lidar_motion_labels_from_footprint_and_speed() -> None:
     assert _motion_track((12.0, 2.5, 3.5), 8.0).label() == "truck"
 
 
+# The labels the rule of cache key ``labels`` 2 gives: (box size, speed) -> label.
+LABELS_OF_KEY_2 = [((0.6, 0.6, 1.7), 1.4, "pedestrian"), ((0.6, 0.6, 1.7), 5.0, "cyclist"),
+                   ((1.8, 0.5, 1.6), 5.0, "cyclist"), ((1.8, 1.3, 1.5), 8.0, "car"),
+                   ((4.5, 1.8, 1.5), 10.0, "car"), ((12.0, 2.5, 3.5), 8.0, "truck")]
+
+
 def test_lidar_motion_cache_key_names_the_label_rule() -> None:
-    # The cached instances.json carries the labels: a new class rule needs a new key.
+    # The cached instances.json carries the labels: a rule that labels these cases otherwise must
+    # come with a new key (then record its labels here under that key).
     assert LidarMotionMaskSource(LidarMotionConfig()).cache_key()["labels"] == 2
+    assert [_motion_track(size, speed).label() for size, speed, _ in LABELS_OF_KEY_2] == [
+        label for _, _, label in LABELS_OF_KEY_2], "the lidar-motion label rule changed: bump cache_key()['labels']"
 
 
 def _instance(label: str) -> InstanceTrack:

@@ -4,7 +4,9 @@ preprocessing that reads no ground truth at all."""
 from __future__ import annotations
 
 import dataclasses
+import os
 import shutil
+import sys
 
 import numpy as np
 import pytest
@@ -109,13 +111,46 @@ def test_moving_tracks_are_the_moving_vehicles(street):
         assert min(np.linalg.norm(x[:2] - c.centroid[:2]) for x in centres) < 3.0
 
 
-def test_self_supervised_preprocessing_reads_no_ground_truth(street, tmp_path):
+_OPENED: list[str] = []
+_RECORDING = [False]
+
+
+def _record_open(event: str, args: tuple) -> None:
+    if _RECORDING[0] and event == "open" and isinstance(args[0], (str, bytes, os.PathLike)):
+        _OPENED.append(os.fsdecode(args[0]))
+
+
+def test_self_supervised_preprocessing_reads_no_ground_truth(tiny_street, tmp_path):
+    """With every ground-truth file on disk and the annotations loaded (moved 50 m aside), the
+    default preprocessing opens none of those files (Python's audit hook sees every open()) and its
+    instances follow the true moving vehicles, not the moved annotations."""
+    from idsplat_ns.data.pandaset import load_sequence
     from idsplat_ns.instances.masks.config import MaskConfig
     from idsplat_ns.instances.runner import PreprocessConfig, run_preprocessing
 
-    scene, truth = street
-    assert not (scene.root / "idsplat_extras").exists() and not scene.tracks
-    result = run_preprocessing(scene, PreprocessConfig(masks=MaskConfig()), tmp_path / "cache", progress=False, verbose=False)
+    root = tmp_path / tiny_street.name
+    shutil.copytree(tiny_street, root)
+    scene = load_sequence(root)
+    truth = [t for t in scene.tracks if t.moving]
+    aside = np.eye(4)
+    aside[1, 3] = 50.0
+    moved = [dataclasses.replace(t, poses=aside @ t.poses) for t in scene.tracks]
+    sys.addaudithook(_record_open)  # stays for the process; records only while the flag is set
+    _OPENED.clear()
+    _RECORDING[0] = True
+    try:
+        result = run_preprocessing(dataclasses.replace(scene, tracks=moved), PreprocessConfig(masks=MaskConfig()),
+                                   tmp_path / "cache", progress=False, verbose=False)
+    finally:
+        _RECORDING[0] = False
     assert result.mask_source == "lidar-motion"
-    moving = len(truth)
-    assert 1 <= len(result.tracks.instances) <= moving + 2
+    ground_truth = [str(root / f) for f in ("idsplat_extras", "annotations", "gt")]
+    assert (root / "annotations").is_dir()
+    assert any(p.startswith(str(root)) for p in _OPENED), "the hook saw no read of the street"
+    assert not [p for p in _OPENED if p.startswith(tuple(ground_truth))]
+    assert 1 <= len(result.tracks.instances) <= len(truth) + 2
+    for inst in result.tracks.instances:  # each found instance follows a true moving vehicle
+        k = int(np.flatnonzero(inst.valid)[0])
+        frame = int(result.tracks.frame_indices[k])
+        centres = [t.pose_at_frame(frame)[:3, 3] for t in truth if t.pose_at_frame(frame) is not None]
+        assert min(np.linalg.norm(c[:2] - inst.poses[k][:2, 3]) for c in centres) < 4.0

@@ -105,7 +105,8 @@ def test_degenerate_inputs_fail_cleanly():
 
 def test_feature_dimension_mismatch_raises():
     pts = np.random.default_rng(0).normal(size=(10, 3))
-    with pytest.raises(ValueError):
+    # The message names the check: numpy's own matmul error would also be a ValueError.
+    with pytest.raises(ValueError, match="feature dimensions differ: source 4, target 5"):
         register(pts, np.ones((10, 4)), pts, np.ones((10, 5)), FAST)
 
 

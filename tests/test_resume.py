@@ -15,6 +15,7 @@ import pytest
 import torch
 
 from idsplat_ns.atomic import TMP_MARK
+from idsplat_ns.model.gaussians import GaussianSet
 from idsplat_ns.nerfstudio.trainer import checkpoint_step, latest_checkpoint
 
 STEPS, SAVE_EVERY = 16, 8
@@ -78,6 +79,7 @@ def test_resume_restores_step_optimizer_and_gaussians(tiny_street: Path, tmp_pat
     model = trainer.pipeline.model
     assert model.gaussians.num == grown
     groups = trainer.pipeline.get_param_groups()
+    compared = 0
     for name, optimizer in trainer.optimizers.optimizers.items():
         held = optimizer.param_groups[0]["params"]
         assert all(a is b for a, b in zip(held, groups[name])), f"{name}: optimizer holds stale tensors"
@@ -86,6 +88,8 @@ def test_resume_restores_step_optimizer_and_gaussians(tiny_street: Path, tmp_pat
             for key in ("exp_avg", "exp_avg_sq"):
                 if index in saved and key in saved[index]:
                     assert torch.equal(optimizer.state[param][key], saved[index][key]), (name, key)
+                    compared += 1
+    assert compared >= 2 * len(GaussianSet.PARAM_NAMES), compared  # Adam's moments of every Gaussian group at least
     trainer.train()
 
     final = latest_checkpoint(folder)
@@ -94,8 +98,11 @@ def test_resume_restores_step_optimizer_and_gaussians(tiny_street: Path, tmp_pat
     assert moved > 0, "the Gaussians did not train after the resume"
     # Within noise of the uninterrupted run: only the MCMC noise draws after the resume differ.
     gap = (_means(final)[:grown] - _means(ckpts[1])[:grown]).abs().median().item()
-    print(f"resume: median |means gap| against the uninterrupted run {gap:.4g} m (moved {moved:.4g} m)")
-    assert gap < 0.05, gap
+    step_move = (_means(final)[:grown] - _means(ckpts[0])).abs().median().item()
+    print(f"resume: median |means gap| against the uninterrupted run {gap:.4g} m (moved {moved:.4g} m, median {step_move:.4g} m)")
+    # Well under the training's own motion since the middle checkpoint (about 0.15 of it here); a reset
+    # optimizer or a resume from the wrong step moves the means by about that motion.
+    assert gap < 0.5 * step_move, (gap, step_move)
 
 
 def _kill_when(proc: subprocess.Popen, ready, timeout: float) -> None:

@@ -132,8 +132,12 @@ def test_summary_json_is_written_before_training_and_with_the_last_checkpoint(tr
     g = after["gaussians"]
     assert g["total"] == model.gaussians.num and g["static"] + sum(v for k, v in g.items() if k.startswith("instance ")) == g["total"]
     assert g["static"] == int((model.gaussians.instance_ids == 0).sum())
-    groups = {k: sum(p.numel() for p in v) for k, v in model.get_param_groups().items()}
-    assert after["parameters"] == groups
+    N = g["total"]
+    per_gaussian = {"means": 3, "scales": 3, "quats": 4, "opacities": 1, "features_rgb": 3, "features": 13}
+    assert {k: after["parameters"][k] for k in per_gaussian} == {k: n * N for k, n in per_gaussian.items()}
+    assert after["parameters"]["trajectory_positions"] + after["parameters"]["trajectory_rotations"] == Z * F * 6
+    assert after["parameters"]["lidar_head"] == after["lidar_head_parameters"]
+    assert after["parameters"]["sensor_embeddings"] == 3 * 8 and after["parameters"]["camera_time_offsets"] == 3
 
 
 def test_the_run_still_loads_as_ns_eval_loads_it(trained):
@@ -226,7 +230,9 @@ def test_only_pedestrians_and_cyclists_deform_and_checkpoints_keep_the_choice(tr
     assert deform.instance_ids.tolist() == [walker.instance_id]
     s = model.scene_summary()
     assert s.deformable_instances == [walker.instance_id]
-    assert s.parameters["deformation"] == sum(p.numel() for p in deform.parameters())
+    steps = len(deform.codes[0])
+    # Codes (one instance, 8 per step) and the MLP 35 -> 64 -> 64 -> 3 (position, sin and cos of 4 frequencies, code).
+    assert s.parameters["deformation"] == steps * 8 + (35 * 64 + 64) + (64 * 64 + 64) + (64 * 3 + 3)
     Optimizers(cfg.optimizers, model.get_param_groups())  # the method has an optimiser for the group
     with torch.no_grad():
         deform.mlp[-1].bias.fill_(0.3)
