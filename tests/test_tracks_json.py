@@ -7,8 +7,8 @@ import json
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation, Slerp
 
-from idsplat_ns.data.geometry import invert_pose
 from idsplat_ns.errors import IDSplatError
 from idsplat_ns.instances.tracks_json import tracks_from_json, tracks_to_json, write_tracks_json
 
@@ -31,7 +31,10 @@ def test_export_is_in_the_datas_own_frame_and_clock(scene_and_tracks):
     k = int(np.flatnonzero(inst.valid)[0])
     # The raw world is the recentred one shifted back: poses map through world_from_raw.
     assert np.allclose(scene.world_from_raw @ np.array(entry["poses"][0]), inst.poses[k], atol=1e-5)
-    assert entry["times"][0] == pytest.approx(scene.time_origin_raw * scene.raw_time_unit_seconds + tracks.frame_times[k])
+    # The clock is the file's own: the lidar sweep's raw timestamp (seconds in the PandaSet layout).
+    raw = json.loads((scene.root / "lidar" / "timestamps.json").read_text())
+    frames = tracks.frame_indices[np.flatnonzero(inst.valid)]
+    assert entry["times"] == pytest.approx([raw[int(f)] for f in frames], abs=1e-6)
     assert len(entry["times"]) == len(entry["poses"]) == len(entry["num_points"]) == inst.num_valid
 
 
@@ -72,7 +75,9 @@ def test_import_interpolates_between_times_and_finds_points_in_a_box(scene_and_t
     assert back.point_counts[valid[0]] >= 0.9 * inst.point_counts[valid[0]] > 0
     local = back.canonical_points
     assert np.all(np.abs(local) <= size / 2 + 1e-9)
-    assert np.allclose(invert_pose(back.poses[mid]) @ back.poses[mid], np.eye(4))
+    # The rotation halfway between its neighbours' (scipy's Slerp; the frames are evenly spaced).
+    halfway = Slerp([0.0, 1.0], Rotation.from_matrix(inst.poses[[valid[0], valid[2]], :3, :3]))(0.5)
+    assert np.allclose(back.poses[mid, :3, :3], halfway.as_matrix(), atol=1e-5)
 
 
 @pytest.mark.parametrize("content, match", [
