@@ -293,6 +293,20 @@ class MCMCDensifier:
             self._generator = torch.Generator(device=device).manual_seed(self.seed)
         return self._generator
 
+    @property
+    def has_generator(self) -> bool:
+        """Whether a draw has been made (the generator exists)."""
+        return self._generator is not None
+
+    def generator_state(self) -> torch.Tensor:
+        """The generator's state (a CPU byte tensor), for a checkpoint."""
+        assert self._generator is not None, "no generator yet: nothing drawn"
+        return self._generator.get_state()
+
+    def set_generator_state(self, state: torch.Tensor, device: torch.device | str) -> None:
+        """Continue the draws of a checkpoint's generator on ``device``."""
+        self.generator(device).set_state(state)
+
     def is_refine_step(self, step: int) -> bool:
         """Whether ``step`` relocates and grows."""
         c = self.config

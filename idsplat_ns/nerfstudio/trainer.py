@@ -11,6 +11,8 @@ Three changes to nerfstudio's behaviour, each needed for ``kill -9`` then the sa
 - After loading, the optimizers are rebuilt on the model's current tensors: loading a checkpoint
   reallocates the Gaussians (MCMC grew them) and may rebuild the trajectories, and nerfstudio's
   optimizers, made before the load, would otherwise keep stepping the discarded tensors.
+- Every random generator's state is saved with the checkpoint and restored
+  (``random_state.py``), so the resumed run draws what the uninterrupted one would have drawn.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from nerfstudio.engine.trainer import Trainer
 from nerfstudio.utils.rich_utils import CONSOLE
 
 from idsplat_ns.atomic import TMP_MARK, atomic_path
+from idsplat_ns.nerfstudio.random_state import capture_random_state, restore_random_state
 
 CHECKPOINT_GLOB = "step-*.ckpt"
 
@@ -82,6 +85,8 @@ class IDSplatTrainer(Trainer):
         if "schedulers" in state and self.config.load_scheduler:
             self.optimizers.load_schedulers(state["schedulers"])
         self.grad_scaler.load_state_dict(state["scalers"])
+        if "random" in state:  # checkpoints written before random states were kept resume without them
+            restore_random_state(state["random"], self.pipeline.model, self.pipeline.datamanager, self.pipeline.device)
         total = self.config.max_num_iterations
         self.config.max_num_iterations = max(total - self._start_step, 0)
         CONSOLE.print(
@@ -102,6 +107,7 @@ class IDSplatTrainer(Trainer):
                     "optimizers": {k: v.state_dict() for k, v in self.optimizers.optimizers.items()},
                     "schedulers": {k: v.state_dict() for k, v in self.optimizers.schedulers.items()},
                     "scalers": self.grad_scaler.state_dict(),
+                    "random": capture_random_state(pipeline.model, pipeline.datamanager),
                 },
                 tmp,
             )
