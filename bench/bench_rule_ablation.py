@@ -289,6 +289,8 @@ def main() -> None:
     ap.add_argument("--registration-seeds", type=int, nargs="+", default=None,
                     help="streets for the variants that change registration or lifting (default: --seeds)")
     ap.add_argument("--json", type=Path, default=None, help="write every (variant, street) result here")
+    ap.add_argument("--table-only", action="store_true",
+                    help="print the table from the results stored in --work, computing nothing (rows on fewer streets where a run stopped)")
     args = ap.parse_args()
     if args.work is None:
         raise SystemExit("--work is required (streets, caches and results are kept there)")
@@ -306,7 +308,8 @@ def main() -> None:
     results: dict[str, dict[int, dict]] = {n: {} for n in names}
     store = args.work / "results"
     store.mkdir(parents=True, exist_ok=True)
-    streets = {seed: (scene, train, cache) for seed, scene, train, cache in training_streets(args, "idsplat_rules_")}
+    streets = {} if args.table_only else {
+        seed: (scene, train, cache) for seed, scene, train, cache in training_streets(args, "idsplat_rules_")}
     # Street by street for the variants that register again: stopped early, whole streets are done.
     jobs = [(n, s) for n in names if configs[n][0] == "smoothing" for s in args.seeds]
     jobs += [(n, s) for s in args.seeds if s in reg_seeds for n in names if configs[n][0] != "smoothing"]
@@ -318,6 +321,8 @@ def main() -> None:
         path = store / f"{name}-{seed}-{key}.json"
         if path.is_file():
             results[name][seed] = json.loads(path.read_text())
+            continue
+        if args.table_only:
             continue
         scene, train, cache = streets[seed]
         t0 = time.perf_counter()

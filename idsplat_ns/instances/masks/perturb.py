@@ -1,5 +1,6 @@
 """Noisy copies of instance masks, to test how the pipeline copes with imperfect segmentation:
-edges dilated or eroded per instance, instances missing in some frames, spurious masks."""
+edges dilated or eroded per instance, instances missing in some frames, spurious masks, and
+identities swapped between two instances of one image (a tracker's ID switch)."""
 
 from __future__ import annotations
 
@@ -27,6 +28,8 @@ class MaskNoiseConfig:
     """How many consecutive frames each spurious mask appears in."""
     spurious_label: str = "car"
     """Class given to spurious masks."""
+    swap_probability: float = 0.0
+    """Probability that, in an image with two or more instances, two of them exchange their IDs."""
     seed: int = 0
     """Random seed."""
 
@@ -48,6 +51,11 @@ def perturb_instance_map(ids: np.ndarray, config: MaskNoiseConfig, rng: np.rando
         elif r < 0:
             m = cv2.erode(m, _kernel(-r))
         out[(m > 0) & (out == 0)] = k
+    present = np.unique(out[out > 0])
+    if len(present) >= 2 and rng.random() < config.swap_probability:
+        a, b = rng.choice(present, size=2, replace=False)
+        in_a, in_b = out == a, out == b
+        out[in_a], out[in_b] = b, a
     return out
 
 
