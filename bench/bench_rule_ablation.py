@@ -175,13 +175,16 @@ NEUTRAL_FIVE = ("no-turning-curvature", "no-gross-yaw", "no-repose", "no-vertica
 
 
 def variant_configs(base: PreprocessConfig) -> dict[str, tuple[str, PreprocessConfig]]:
-    """``{name: (stage, config)}``: ``default``, one per rule, ``no-neutral-five`` and ``paper``."""
+    """``{name: (stage, config)}``: ``default``, one per rule, ``no-neutral-five``,
+    ``no-tilt-limit-rescore`` and ``paper``."""
     out = {"default": ("smoothing", base)}
     out.update({r.name: (r.stage, r.off(base)) for r in RULES})
     joint = base
     for name in NEUTRAL_FIVE:
         joint = RULE_BY_NAME[name].off(joint)
     out["no-neutral-five"] = ("smoothing", joint)
+    # The two registration rules whose removal alone helped, removed together.
+    out["no-tilt-limit-rescore"] = ("registration", RULE_BY_NAME["no-rescore"].off(RULE_BY_NAME["no-tilt-limit"].off(base)))
     out["paper"] = ("lifting", _paper(base))
     return out
 
@@ -285,7 +288,7 @@ def main() -> None:
     ap.set_defaults(seeds=list(range(100, 110)))
     ap.add_argument("--variants", nargs="+", default=None,
                     help="rows to run (default: every rule, then paper); default is always run. "
-                         f"Rules: {' '.join(r.name for r in RULES)} no-neutral-five paper")
+                         f"Rules: {' '.join(r.name for r in RULES)} no-neutral-five no-tilt-limit-rescore paper")
     ap.add_argument("--registration-seeds", type=int, nargs="+", default=None,
                     help="streets for the variants that change registration or lifting (default: --seeds)")
     ap.add_argument("--json", type=Path, default=None, help="write every (variant, street) result here")
@@ -296,7 +299,7 @@ def main() -> None:
         raise SystemExit("--work is required (streets, caches and results are kept there)")
     base = PreprocessConfig(masks=MaskConfig(kind="ground-truth"))
     configs = variant_configs(base)
-    names = args.variants or [r.name for r in RULES] + ["no-neutral-five", "paper"]
+    names = args.variants or [r.name for r in RULES] + ["no-neutral-five", "no-tilt-limit-rescore", "paper"]
     unknown = [n for n in names if n not in configs]
     if unknown:
         raise SystemExit(f"--variants: unknown {unknown}; choose from {list(configs)}")
