@@ -46,7 +46,8 @@ class Chromium:
         self.proc = subprocess.Popen(
             [chromium_path(), "--headless=new", "--no-sandbox", "--no-first-run", "--disable-extensions",
              "--use-angle=swiftshader", "--enable-unsafe-swiftshader", f"--window-size={width},{height}",
-             f"--remote-debugging-port={port}", f"--user-data-dir={self.profile}", "about:blank"],
+             f"--remote-debugging-port={port}", "--remote-allow-origins=*",  # newer Chromium refuses the DevTools socket otherwise
+             f"--user-data-dir={self.profile}", "about:blank"],
             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         deadline = time.time() + 30
         while True:
