@@ -56,6 +56,21 @@ def test_tile_rasterizer_equals_dense_reference(tile_size):
         torch.testing.assert_close(g_ours, g_ref, atol=1e-4, rtol=1e-4)
 
 
+@pytest.mark.parametrize("chunk_elems", [1 << 10, 1 << 24])
+def test_compositor_block_size_never_changes_the_image(chunk_elems):
+    # Small blocks (many carried transmittances) and one block for everything: both the dense image.
+    (means, quats, scales, opac, feats, vm, Ks), _ = _scene()
+    w, h = 37, 29
+    params = [t.clone().requires_grad_() for t in (means, quats, scales, opac, feats)]
+    out = rasterize_camera(*params, vm, Ks, w, h, backend="torch", chunk_elems=chunk_elems)
+    _, (f, a, *_rest) = _dense(*params, vm, Ks, w, h)
+    torch.testing.assert_close(out.features, f, atol=2e-6, rtol=1e-5)
+    torch.testing.assert_close(out.alpha, a, atol=2e-6, rtol=1e-5)
+    for g_ours, g_ref in zip(torch.autograd.grad(out.features.square().sum() + out.alpha.sum(), params),
+                             torch.autograd.grad(f.square().sum() + a.sum(), params)):
+        torch.testing.assert_close(g_ours, g_ref, atol=1e-4, rtol=1e-4)
+
+
 def test_gradcheck_float64_tiny_scene():
     (means, quats, scales, opac, feats, vm, Ks), _ = _scene(n=6, seed=3, dtype=torch.float64, cams=1)
     opac = opac.clamp(0.2, 0.8)

@@ -12,7 +12,7 @@ from torch import Tensor
 from ..errors import IDSplatError
 from .projection import Projection, project_gaussians
 from .rolling_shutter import CameraMotion
-from .tile_composite import DEFAULT_CHUNK_ELEMS, CompositePlan, TileCoefficients, TileComposite, pixel_basis
+from .tile_composite import CompositePlan, TileCoefficients, TileComposite, default_block_elems, pixel_basis
 from .tiles import intersect_tiles, tiles_to_image
 
 
@@ -88,6 +88,7 @@ def rasterize_camera(
     tile_size: int = 8,
     return_instance_alpha: bool = False,
     motion: Optional[CameraMotion] = None,
+    chunk_elems: Optional[int] = None,
 ) -> CameraRender:
     """Render C pinhole cameras: features, alpha, expected/median depth and instance IDs.
 
@@ -96,8 +97,8 @@ def rasterize_camera(
     :mod:`idsplat_ns.render.reference`). Differentiable w.r.t. means, quats, scales, opacities,
     features and viewmats. ``backend``: ``"torch"`` (tile rasterizer, any device), ``"gsplat"``
     (CUDA kernels) or ``"auto"`` (gsplat when the inputs are on CUDA and gsplat is installed).
-    ``tile_size`` only trades speed against memory in the torch backend; it never changes the
-    image. ``return_instance_alpha`` adds the per-instance alpha maps (one channel per distinct
+    ``tile_size`` and ``chunk_elems`` (the compositor's block size; None: the device's default)
+    only trade speed against memory in the torch backend; they never change the image. ``return_instance_alpha`` adds the per-instance alpha maps (one channel per distinct
     ID in ``instance_ids``). ``motion``: rolling shutter, each Gaussian drawn where it is when its
     line is exposed (:mod:`idsplat_ns.render.rolling_shutter`); None or a global timing renders
     every Gaussian at the camera's time.
@@ -126,7 +127,7 @@ def rasterize_camera(
     return rasterize_projected(
         proj, opacities, features, width, height,
         instance_ids=instance_ids, tile_size=tile_size,
-        return_instance_alpha=return_instance_alpha,
+        return_instance_alpha=return_instance_alpha, chunk_elems=chunk_elems,
     )  # fmt: skip
 
 
@@ -140,7 +141,7 @@ def rasterize_projected(
     instance_ids: Optional[Tensor] = None,  # [N] int64
     tile_size: int = 8,
     return_instance_alpha: bool = False,
-    chunk_elems: int = DEFAULT_CHUNK_ELEMS,
+    chunk_elems: Optional[int] = None,
 ) -> CameraRender:
     """Torch tile rasterizer on already projected Gaussians (see :func:`rasterize_camera`).
 
@@ -182,7 +183,7 @@ def rasterize_projected(
     coeffs = TileCoefficients.apply(per_gaussian.index_select(0, gid), cx, cy)
     plan = CompositePlan(
         tile_offsets=isects.tile_offsets, gaussian_ids=gid,
-        basis=pixel_basis(b, device, torch.float64), block_elems=chunk_elems,
+        basis=pixel_basis(b, device, torch.float64), block_elems=chunk_elems or default_block_elems(device),
     )  # fmt: skip
     pix, crossing = TileComposite.apply(coeffs, feats, plan)
     out = tiles_to_image(pix, isects, width, height)
