@@ -54,108 +54,102 @@ MOTA_EFFECT = 0.01  # verdict margins: mean MOTA@2m change ...
 CORNER_EFFECT = 0.03  # ... or mean relative corner-error change
 
 
-def _smoothing(**fields) -> Callable[[PreprocessConfig], PreprocessConfig]:
-    return lambda c: replace(c, smoothing=replace(c.smoothing, **fields))
+def _with(path: str, value) -> Callable[[PreprocessConfig], PreprocessConfig]:
+    """The config with the field at dotted ``path`` set to ``value`` (nested frozen dataclasses)."""
+    names = path.split(".")
+    if names[0] == "registration":  # named as the docs name it; it lives in the trajectory config
+        names = ["trajectory", *names]
 
+    def apply(c, names=tuple(names)):
+        if len(names) == 1:
+            return replace(c, **{names[0]: value})
+        return replace(c, **{names[0]: apply(getattr(c, names[0]), names[1:])})
 
-def _trajectory(**fields) -> Callable[[PreprocessConfig], PreprocessConfig]:
-    return lambda c: replace(c, trajectory=replace(c.trajectory, **fields))
-
-
-def _registration(**fields) -> Callable[[PreprocessConfig], PreprocessConfig]:
-    return lambda c: replace(c, trajectory=replace(c.trajectory, registration=replace(c.trajectory.registration, **fields)))
-
-
-def _nested(outer: str, inner: str, **fields) -> Callable[[PreprocessConfig], PreprocessConfig]:
-    """``c.<outer>.<inner>`` with ``fields`` replaced (``outer`` ``trajectory``: its sub-configs)."""
-    def apply(c: PreprocessConfig) -> PreprocessConfig:
-        o = getattr(c, outer)
-        return replace(c, **{outer: replace(o, **{inner: replace(getattr(o, inner), **fields)})})
     return apply
-
-
-def _top(name: str, **fields) -> Callable[[PreprocessConfig], PreprocessConfig]:
-    return lambda c: replace(c, **{name: replace(getattr(c, name), **fields)})
 
 
 @dataclass(frozen=True)
 class Rule:
-    """One rule beyond the paper and how it is switched off."""
+    """One rule beyond the paper and the setting that switches it off."""
 
     name: str  # variant name (the rule off)
     stage: str  # the first cached stage it changes: smoothing (or later) | registration | lifting
-    off: Callable[[PreprocessConfig], PreprocessConfig]
-    setting: str  # the setting that switches it off (on, for a rule off by default)
+    path: str  # dotted config field, as the docs name it (``registration.*`` is ``trajectory.registration.*``)
+    value: object  # the value that switches the rule off (on, for a rule off by default)
     what: str  # what the rule does, one line
     default_on: bool = True  # False: the rule is off by default and the variant switches it on
+
+    @property
+    def setting(self) -> str:
+        value = f"{self.value:g}" if isinstance(self.value, float) else str(self.value)
+        return f"{self.path}={value}"
+
+    def off(self, c: PreprocessConfig) -> PreprocessConfig:
+        return _with(self.path, self.value)(c)
 
 
 RULES = [
     # Smoothing (registration reused from the cache).
-    Rule("no-vertical-motion", "smoothing", _smoothing(motion_vertical_sigma=None), "smoothing.motion_vertical_sigma=None",
+    Rule("no-vertical-motion", "smoothing", "smoothing.motion_vertical_sigma", None,
          "CT motion factor's vertical translation per step held to 0.02 m (paper: isotropic 0.2 m)"),
-    Rule("no-tilt-motion", "smoothing", _smoothing(motion_tilt_sigma=None), "smoothing.motion_tilt_sigma=None",
+    Rule("no-tilt-motion", "smoothing", "smoothing.motion_tilt_sigma", None,
          "CT motion factor's roll/pitch change per step held to 0.01 rad (paper: 0.1 rad)"),
-    Rule("no-turning-curvature", "smoothing", _smoothing(turning_curvature_sigma=None), "smoothing.turning_curvature_sigma=None",
+    Rule("no-turning-curvature", "smoothing", "smoothing.turning_curvature_sigma", None,
          "curvature prior and walk freed for vehicles whose registrations turn by 30 deg or more"),
-    Rule("no-heading-prior", "smoothing", _smoothing(heading_prior_sigma=None), "smoothing.heading_prior_sigma=None",
+    Rule("no-heading-prior", "smoothing", "smoothing.heading_prior_sigma", None,
          "direction of travel tied to the vehicle's box axis from its points' vertical faces"),
-    Rule("no-ground", "smoothing", _smoothing(ground_height_walk_rate=None), "smoothing.ground_height_walk_rate=None",
+    Rule("no-ground", "smoothing", "smoothing.ground_height_walk_rate", None,
          "vehicle height follows the lidar ground under it"),
-    Rule("no-span-limit", "smoothing", _smoothing(span_max_distance=None), "smoothing.span_max_distance=None",
+    Rule("no-span-limit", "smoothing", "smoothing.span_max_distance", None,
          "measurements > 1 m from the smoothed track do not extend the instance's span"),
-    Rule("no-gross-yaw", "smoothing", _smoothing(gross_yaw_deviation=None), "smoothing.gross_yaw_deviation=None",
+    Rule("no-gross-yaw", "smoothing", "smoothing.gross_yaw_deviation", None,
          "measurements > 90 deg off their neighbours' yaw are outliers from the start"),
-    Rule("with-outlier-point-drop", "smoothing", _smoothing(drop_outlier_points=True), "smoothing.drop_outlier_points=True",
+    Rule("with-outlier-point-drop", "smoothing", "smoothing.drop_outlier_points", True,
          "points of outlier measurements leave the canonical point set (off by default)", default_on=False),
-    Rule("frame-times", "smoothing", _smoothing(measurement_times=False), "smoothing.measurement_times=False",
+    Rule("frame-times", "smoothing", "smoothing.measurement_times", False,
          "registrations placed at their points' mean lidar ray time, not the frame time"),
-    Rule("no-repose", "smoothing", _smoothing(repose_points=False), "smoothing.repose_points=False",
+    Rule("no-repose", "smoothing", "smoothing.repose_points", False,
          "canonical points re-derived with the smoothed pose at their own ray time"),
-    Rule("no-degenerate", "smoothing", _smoothing(degenerate_directions=False), "smoothing.degenerate_directions=False",
+    Rule("no-degenerate", "smoothing", "smoothing.degenerate_directions", False,
          "directions a view's surfaces do not measure get a 3 m sigma (and the three rules below)"),
-    Rule("no-vertical-cap", "smoothing", _smoothing(degenerate_vertical_sigma=None), "smoothing.degenerate_vertical_sigma=None",
+    Rule("no-vertical-cap", "smoothing", "smoothing.degenerate_vertical_sigma", None,
          "an unmeasured vertical direction is never freer than 0.3 m"),
-    Rule("no-sparse-views", "smoothing", _smoothing(degenerate_sparse_frame_points=None),
-         "smoothing.degenerate_sparse_frame_points=None",
+    Rule("no-sparse-views", "smoothing", "smoothing.degenerate_sparse_frame_points", None,
          "views of < 100 points leave every unmeasured direction to the motion (with a heading prior)"),
-    Rule("two-sided", "smoothing", _smoothing(degenerate_one_sided=False), "smoothing.degenerate_one_sided=False",
+    Rule("two-sided", "smoothing", "smoothing.degenerate_one_sided", False,
          "an axis measured only through the front in some views and the rear in others is left to the motion"),
-    Rule("no-reconverge", "smoothing", _smoothing(reconverge_below_inlier_fraction=0.0),
-         "smoothing.reconverge_below_inlier_fraction=0",
+    Rule("no-reconverge", "smoothing", "smoothing.reconverge_below_inlier_fraction", 0.0,
          "first pass iterated to convergence when it keeps < 50 % of the measurements"),
     # After registration, not cached (static conversion changes the smoothing key through the dynamic set).
-    Rule("no-world-overlap", "smoothing", _top("static", use_world_overlap=False), "static.use_world_overlap=False",
+    Rule("no-world-overlap", "smoothing", "static.use_world_overlap", False,
          "instances whose points agree across frames without motion are made static"),
-    Rule("no-amodal", "smoothing", _top("amodal", enabled=False), "amodal.enabled=False",
+    Rule("no-amodal", "smoothing", "amodal.enabled", False,
          "canonical origin moved to the middle of the whole vehicle (class size, sensor side)"),
     # Registration (a registration of its own per street).
-    Rule("no-back-face", "registration", _registration(back_face_tolerance=None), "registration.back_face_tolerance=None",
+    Rule("no-back-face", "registration", "registration.back_face_tolerance", None,
          "fitness inliers only on source surfaces facing the target's sensor"),
-    Rule("no-tilt-limit", "registration", _registration(max_tilt=None), "registration.max_tilt=None",
+    Rule("no-tilt-limit", "registration", "registration.max_tilt", None,
          "RANSAC hypotheses tilting the up axis > 20 deg are not considered"),
-    Rule("no-rescore", "registration", _registration(rescore_top_k=1), "registration.rescore_top_k=1",
+    Rule("no-rescore", "registration", "registration.rescore_top_k", 1,
          "the 8 best hypotheses by correspondence inliers re-scored by fitness (paper: the best one)"),
-    Rule("no-refit", "registration", _registration(refine_iterations=0), "registration.refine_iterations=0",
+    Rule("no-refit", "registration", "registration.refine_iterations", 0,
          "the winner refitted (Umeyama) on all its consistent correspondences, twice"),
-    Rule("no-icp", "registration", _registration(icp_iterations=0), "registration.icp_iterations=0",
+    Rule("no-icp", "registration", "registration.icp_iterations", 0,
          "point-to-plane ICP refinement of the RANSAC winner"),
-    Rule("no-chain", "registration", _trajectory(chain_neighbours=0), "trajectory.chain_neighbours=0",
+    Rule("no-chain", "registration", "trajectory.chain_neighbours", 0,
          "failed frames registered again against their nearest registered frames (with motion-outliers and coast)"),
-    Rule("no-motion-outliers", "registration", _trajectory(motion_outliers=False), "trajectory.motion_outliers=False",
+    Rule("no-motion-outliers", "registration", "trajectory.motion_outliers", False,
          "first-pass registrations > 1 m off the constant-velocity prediction left to the chain"),
-    Rule("no-coast", "registration", _trajectory(coast_frames=0), "trajectory.coast_frames=0",
+    Rule("no-coast", "registration", "trajectory.coast_frames", 0,
          "one unregistered frame past either end takes the constant-velocity prediction when its points fit"),
-    Rule("no-heading-flips", "registration", _nested("trajectory", "heading_flips", enabled=False),
-         "trajectory.heading_flips.enabled=False",
+    Rule("no-heading-flips", "registration", "trajectory.heading_flips.enabled", False,
          "registrations whose heading disagrees with the travel (flips, quarter turns) turned back"),
-    Rule("no-segments", "registration", _trajectory(min_segment_frames=0), "trajectory.min_segment_frames=0",
+    Rule("no-segments", "registration", "trajectory.min_segment_frames", 0,
          "unregistered observations that register together (>= 3 frames) form a segment (and are linked back)"),
-    Rule("no-segment-link", "registration", _nested("trajectory", "link_segments", enabled=False),
-         "trajectory.link_segments.enabled=False",
+    Rule("no-segment-link", "registration", "trajectory.link_segments.enabled", False,
          "split segments joined back to their instance through the vehicle's box"),
     # Lifting (new lifting, features and registration per street).
-    Rule("full-erosion", "lifting", _top("lifting", min_kept_area=0.0), "lifting.min_kept_area=0",
+    Rule("full-erosion", "lifting", "lifting.min_kept_area", 0.0,
          "masks eroded less where 3 px would remove more than half of a small mask"),
 ]
 RULE_BY_NAME = {r.name: r for r in RULES}
