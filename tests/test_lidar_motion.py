@@ -15,6 +15,7 @@ from idsplat_ns.data.lidar import LidarSweep
 from idsplat_ns.instances.lidar_motion import (
     LidarMotionConfig,
     _SweepRays,
+    fits_footprint,
     ground_heights,
     merge_parts,
     MotionCluster,
@@ -83,6 +84,90 @@ def test_parts_of_one_object_merge_and_neighbours_do_not():
     assert len(merged) == 3
     car = next(t for t in merged if len(t.clusters[0].points) == 80)
     assert all(len(c.points) == 80 for c in car.clusters)
+
+
+def _box_track(track_id: int, size, centre, velocity, frames: int = 5, seed: int = 0, dt: float = 0.2) -> MotionTrack:
+    """A track whose clusters are points on a box's surface region moving at ``velocity``."""
+    rng = np.random.default_rng(seed)
+    velocity = np.asarray(velocity, float)
+    clusters = []
+    for k in range(frames):
+        pts = np.asarray(centre) + rng.uniform(-0.5, 0.5, (60, 3)) * np.asarray(size) + velocity * dt * k
+        clusters.append(MotionCluster(k, pts, np.full(60, dt * k), 1.0))
+    return MotionTrack(track_id, clusters, velocity)
+
+
+def test_a_tall_vehicle_seen_end_on_is_a_bus_and_a_car_face_is_a_car():
+    # Points of the rear face of a 3.1 m bus (a 2.5 m wide, 2.8 m tall wall above min_height) and
+    # of the rear face of a car (1.8 m wide, 1.2 m tall), both driving away at 7 m/s.
+    bus = _box_track(1, (0.1, 2.5, 2.8), (20.0, 0.0, 1.7), (7.0, 0.0, 0.0))
+    car = _box_track(2, (0.1, 1.8, 1.2), (20.0, 0.0, 0.9), (7.0, 0.0, 0.0))
+    assert bus.height() == pytest.approx(2.8, abs=0.15)
+    assert (bus.label(), car.label()) == ("bus", "car")
+    assert bus.label(long_vehicle_height=3.0) == "car"  # the threshold decides
+
+
+def test_objects_are_kept_out_to_the_lifting_range():
+    # A box 75 m away on flat ground: within the default range (the 80 m of instance lifting).
+    rng = np.random.default_rng(2)
+    road = np.c_[rng.uniform(70, 80, (8000, 1)), rng.uniform(-5, 5, (8000, 1)), np.full((8000, 1), -1.8)]
+    box = np.c_[rng.uniform(74, 76, (200, 1)), rng.uniform(-1, 1, (200, 1)), rng.uniform(-1.2, -0.4, (200, 1))]
+    sweep = _sweep(np.concatenate([road, box]))
+    config = LidarMotionConfig()
+    keys, heights = ground_heights([sweep], config.ground_cell, config.ground_rank)
+    pts, _ = object_points(sweep, keys, heights, config)
+    assert np.sum(pts[:, 0] > 73) == 200
+    near, _ = object_points(sweep, keys, heights, dataclasses.replace(config, max_range=60.0))
+    assert np.sum(near[:, 0] > 73) == 0
+
+
+def test_fits_footprint_along_the_direction_of_motion():
+    rng = np.random.default_rng(3)
+    car = np.c_[rng.uniform(-2.2, 2.2, (300, 1)), rng.uniform(-0.9, 0.9, (300, 1)), np.zeros((300, 1))]
+    yaw = np.radians(35.0)
+    R = np.array([[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1]])
+    heading = R[:2, 0] * 8.0
+    assert fits_footprint(car @ R.T + [10.0, 5.0, 0.0], (5.0, 2.5), heading)  # a turned car fits
+    assert not fits_footprint(car @ R.T, (5.0, 2.5), R[:2, 1])  # moving sideways it would be 4.4 m wide
+    assert fits_footprint(car @ R.T, (5.0, 2.5), np.zeros(2))  # no heading: its principal axes
+    side_by_side = np.concatenate([car, car + [0.0, 3.5, 0.0]])  # two cars in neighbouring lanes
+    assert not fits_footprint(side_by_side, (5.0, 2.5), np.array([8.0, 0.0]))
+    nose_to_tail = np.concatenate([car, car + [5.5, 0.0, 0.0]])
+    assert not fits_footprint(nose_to_tail, (5.0, 2.5), np.array([8.0, 0.0]))
+    small_abreast = np.concatenate([car[:, :] * [0.3, 0.5, 1.0], car * [0.3, 0.5, 1.0] + [0.0, 3.0, 0.0]])
+    assert not fits_footprint(small_abreast, (5.0, 2.5), np.array([8.0, 0.0]))  # two riders abreast
+
+
+def test_rear_face_and_roof_of_one_car_merge_but_two_cars_abreast_do_not():
+    config = LidarMotionConfig()
+    # A car 4.5 m long driving along +x at 8 m/s, followed from behind: its rear face (x in
+    # [0, 0.1]) and its roof (x in [2.0, 3.2]); the rear window between them returns nothing, so
+    # the pieces are 1.9 m apart, more than merge_distance.
+    rear = _box_track(1, (0.1, 1.8, 1.0), (0.05, 0.0, 0.5), (8.0, 0.0, 0.0), seed=4)
+    roof = _box_track(2, (1.2, 1.5, 0.05), (2.6, 0.0, 1.4), (8.0, 0.0, 0.0), seed=5)
+    assert config.merge_distance < 1.9
+    assert len(merge_parts([rear, roof], config)) == 1
+    # The same pieces one behind the other on two cars abreast, 3.5 m apart: two objects.
+    other = _box_track(3, (1.2, 1.5, 0.05), (2.6, 3.5, 1.4), (8.0, 0.0, 0.0), seed=6)
+    assert len(merge_parts([rear, other], config)) == 2
+    # A piece in the car's footprint moving the other way (an oncoming cyclist passing): apart.
+    oncoming = _box_track(4, (1.2, 0.5, 1.0), (2.6, 0.0, 1.0), (-6.0, 0.0, 0.0), seed=7)
+    assert len(merge_parts([rear, oncoming], config)) == 2
+
+
+def test_parts_whose_centroids_jump_between_sweeps_still_merge():
+    # Two pieces of one car at 8 m/s (1.6 m per 0.2 s sweep); the roof is found in the last two
+    # sweeps only, and in the last one its cluster holds only its rear half, so its centroid
+    # advances 1.2 m instead of 1.6 m in that step (0.4 m per sweep off the rear face's step),
+    # while over the tracks' lives the speeds differ by 2 m/s only.
+    config = LidarMotionConfig()
+    rear = _box_track(1, (0.1, 1.8, 1.0), (0.05, 0.0, 0.5), (8.0, 0.0, 0.0), seed=8)
+    roof = _box_track(2, (1.6, 1.5, 0.05), (2.6, 0.0, 1.4), (8.0, 0.0, 0.0), seed=9)
+    last = roof.clusters[4]
+    back = last.points[:, 0] < np.median(last.points[:, 0])
+    roof.clusters = [roof.clusters[3], MotionCluster(4, last.points[back], last.times[back], 1.0)]
+    assert np.linalg.norm(roof.mean_velocity()[:2] - rear.mean_velocity()[:2]) < config.merge_speed_difference
+    assert len(merge_parts([rear, roof], config)) == 1
 
 
 @pytest.fixture(scope="module")

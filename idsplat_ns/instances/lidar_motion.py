@@ -11,7 +11,10 @@ users with no Grounded-SAM-2 files or no GPU).
    of free among free + occupied.
 4. **Tracks**: clusters are associated over sweeps by their centroids (constant-velocity
    prediction, Hungarian assignment within a gate); a track is moving when its median motion score
-   exceeds ``moving_score``. Parked cars, poles and walls fail the test.
+   exceeds ``moving_score``. Parked cars, poles and walls fail the test. Moving tracks at similar
+   mean velocity whose clusters touch, or together fit a car's footprint, in every shared sweep
+   are pieces of one vehicle and merge. The class guess comes from footprint, height and speed
+   (a tall vehicle seen end-on is a ``bus``, so that its centre is completed to a bus length).
 5. **Masks**: each moving track's points, moved by its velocity to the image time, are projected
    into every camera and filled as their convex hull (nearer over farther), written in the mask
    folder format, so that lifting, registration and smoothing take them unchanged.
@@ -39,8 +42,9 @@ from idsplat_ns.instances.masks.base import InstanceMaskSet, MaskSource, mask_fi
 class LidarMotionConfig:
     """Settings of the lidar-motion instance source."""
 
-    max_range: float = 60.0
-    """Metres from the sensor: farther points are ignored (too sparse to cluster)."""
+    max_range: float = 80.0
+    """Metres from the sensor: farther points are ignored (too sparse to cluster); the range
+    instance lifting uses, so that a vehicle is found wherever it can be lifted."""
     ground_cell: float = 0.5
     """Metres: side of the ground height cells."""
     ground_rank: int = 2
@@ -75,6 +79,13 @@ class LidarMotionConfig:
     merge_distance: float = 1.5
     """Metres: moving tracks whose clusters come this close in every shared sweep, at similar
     velocity, are parts of one object (a car seen in two pieces around an occluder) and merge."""
+    merge_speed_difference: float = 3.0
+    """m/s: largest difference of two tracks' mean velocities for them to be parts of one object."""
+    merge_footprint: tuple[float, float] = (5.0, 2.5)
+    """Metres (length, width): moving tracks whose clusters, in every shared sweep, together fit a
+    box of this size on the ground (its length along their motion), at similar velocity, are parts of
+    one vehicle too (a car followed from behind shows its rear face and its roof, split where the
+    rear window returns nothing, often more than ``merge_distance`` apart)."""
     association_gate: float = 2.5
     """Metres: largest centroid distance to a track's prediction for an association."""
     max_missed_frames: int = 3
@@ -83,6 +94,10 @@ class LidarMotionConfig:
     """Moving tracks seen in fewer sweeps are dropped."""
     mask_dilation_px: int = 3
     """Pixels by which the projected hull is grown (lidar points sit inside the silhouette)."""
+    long_vehicle_height: float = 2.2
+    """Metres: a vehicle track whose clusters' median height extent exceeds this is labelled
+    ``bus`` (buses and lorries seen end-on show a car-sized face; the label gives the amodal-centre
+    stage a long-vehicle length, else the centre sits metres inside the rear)."""
 
 
 @dataclass
@@ -125,6 +140,14 @@ class MotionTrack:
         t0, t1 = float(np.mean(self.clusters[0].times)), float(np.mean(self.clusters[-1].times))
         return self.displacement() / (t1 - t0) if t1 > t0 else float("nan")
 
+    def mean_velocity(self) -> np.ndarray:  # -> [3] m/s
+        """Centroid velocity from the first to the last cluster (the last association's velocity
+        for a single time)."""
+        t0, t1 = float(np.mean(self.clusters[0].times)), float(np.mean(self.clusters[-1].times))
+        if t1 <= t0:
+            return self.velocity
+        return (self.clusters[-1].centroid - self.clusters[0].centroid) / (t1 - t0)
+
     def footprint(self) -> tuple[float, float]:
         """(length, width) metres on the ground along the principal axes of the cluster that holds
         the most points, grown to the 80th percentile of the lengths over the track's clusters
@@ -142,14 +165,21 @@ class MotionTrack:
         length = max(float(best[0]), float(np.percentile([e[1][0] for e in extents], 80)))
         return length, float(best[1])
 
-    def label(self) -> str:
-        """A class guess from the footprint and the speed (the source has no detector label):
-        ``pedestrian``, ``cyclist``, ``car`` or (longer than 6.5 m) ``truck``."""
+    def height(self) -> float:
+        """Metres: median over the clusters of their vertical extent (NaN without clusters)."""
+        return float(np.median([np.ptp(c.points[:, 2]) for c in self.clusters])) if self.clusters else float("nan")
+
+    def label(self, long_vehicle_height: float = LidarMotionConfig.long_vehicle_height) -> str:
+        """A class guess from the footprint, the height and the speed (the source has no detector
+        label): ``pedestrian``, ``cyclist``, ``car``, (longer than 6.5 m) ``truck`` or (shorter
+        but taller than ``long_vehicle_height``: a long vehicle seen end-on) ``bus``."""
         length, width = self.footprint()
         cls = class_from_size_speed(length, width, self.mean_speed())
         if cls != "vehicle":
             return cls if cls != "other" else "object"
-        return "truck" if length > 6.5 else "car"
+        if length > 6.5:
+            return "truck"
+        return "bus" if self.height() > long_vehicle_height else "car"
 
 
 def ground_heights(sweeps: list[LidarSweep], cell: float, rank: int) -> tuple[np.ndarray, np.ndarray]:
@@ -294,20 +324,34 @@ def _parts_of_one_object(a: MotionTrack, b: MotionTrack, config: LidarMotionConf
     shared = [(frames_a[c.frame], c) for c in b.clusters if c.frame in frames_a]
     if not shared:
         return False
-    # Velocities over the shared sweeps (a short fragment's last-step velocity is noisy).
-    if len(shared) >= 2:
-        (a0, b0), (a1, b1) = shared[0], shared[-1]
-        steps = max(a1.frame - a0.frame, 1)
-        va, vb = (a1.centroid - a0.centroid) / steps, (b1.centroid - b0.centroid) / steps
-        if np.linalg.norm(va[:2] - vb[:2]) > 0.3:  # metres per sweep (~3 m/s at 10 Hz)
-            return False
-    elif np.linalg.norm(a.velocity[:2] - b.velocity[:2]) > 3.0:
+    # Velocities over each track's life: a car's pieces swap between tracks from sweep to sweep,
+    # so centroid steps over a few shared sweeps jump by the piece offsets.
+    va, vb = a.mean_velocity()[:2], b.mean_velocity()[:2]
+    if np.linalg.norm(va - vb) > config.merge_speed_difference:
         return False
     for ca, cb in shared:
         gap, _ = cKDTree(ca.points).query(cb.points, k=1)
-        if gap.min() > config.merge_distance:
+        together = np.concatenate([ca.points, cb.points])
+        if gap.min() > config.merge_distance and not fits_footprint(together, config.merge_footprint, va + vb):
             return False
     return True
+
+
+def fits_footprint(points: np.ndarray, size: tuple[float, float], heading: np.ndarray) -> bool:
+    """Whether ``points`` [N, 3] fit a ground box of ``size`` (length, width) metres whose length
+    runs along ``heading`` [2] (the direction of motion: vehicles are long along it, and two
+    objects abreast are wide across it); along the points' principal axes for a zero heading."""
+    xy = points[:, :2] - points[:, :2].mean(0)
+    if len(xy) < 2:
+        return True
+    norm = float(np.linalg.norm(heading))
+    if norm > 1e-6:
+        along = heading / norm
+        axes = np.stack([along, [-along[1], along[0]]])
+    else:
+        _, _, axes = np.linalg.svd(xy, full_matrices=False)
+    extent = np.ptp(xy @ axes.T, axis=0)
+    return bool(extent[0] <= max(size) and extent[1] <= min(size))
 
 
 def merge_parts(tracks: list[MotionTrack], config: LidarMotionConfig) -> list[MotionTrack]:
@@ -382,16 +426,16 @@ class LidarMotionMaskSource(MaskSource):
         self.config = config
 
     def cache_key(self) -> dict:
-        # labels: 2 since the class guess uses the speed and the track's footprint (cached
-        # instances.json files of version 1 carry footprint-only guesses).
-        return {"kind": self.name, "labels": 2, **asdict(self.config)}
+        # labels: the version of the class-guess rule (cached instances.json files carry its
+        # labels; 3: tall vehicles seen end-on are buses).
+        return {"kind": self.name, "labels": 3, **asdict(self.config)}
 
     def generate(self, scene: Scene, out_dir: Path, progress: bool = True) -> InstanceMaskSet:
         out_dir = Path(out_dir)
         out_dir.mkdir(parents=True, exist_ok=True)
         tracks = moving_tracks(scene, self.config, progress)
         render_track_masks(scene, tracks, self.config, out_dir, progress)
-        labels = {tr.track_id: tr.label() for tr in tracks}
+        labels = {tr.track_id: tr.label(self.config.long_vehicle_height) for tr in tracks}
         write_labels(out_dir, labels, {tr.track_id: {"frames": len(tr.clusters), "motion_score": tr.median_score(),
                                                       "speed": _finite_or_none(tr.mean_speed()),
                                                       "footprint": [_finite_or_none(v) for v in tr.footprint()]}
