@@ -1,0 +1,203 @@
+"""Speed against accuracy: train and evaluate points of the preset family on built-in streets and
+write the table and the Pareto plot (time against PSNR and DPSNR).
+
+A point is a step count with the preset's schedules scaled to it, as ``idsplat-fast`` scales them
+(``make_trainer_config``: resolution schedule at 1/5 and 7/15 of the run, warm-ups in proportion),
+plus optional overrides of the model config (one knob moved at a time). Each training runs in a
+child process of its own and is measured there: wall time, CPU time (user + system, the figure
+least disturbed by other work on the machine) and peak resident memory. The street's instance
+preprocessing runs once before the points (``idsplat-preprocess``, timed apart) so that every
+point reads it from the cache. Then ``ns-eval``: PSNR, SSIM, DPSNR, MOTA@2m, lidar depth error
+(``lidar_depth``: median squared range error, m^2), and the Gaussians in the final checkpoint.
+
+    .venv/bin/python bench/pareto.py --seeds 100 --work outputs/pareto --table docs/pareto_table.md --plot docs/pareto.png
+    .venv/bin/python bench/pareto.py --points steps-300 steps-1000 --seeds 100 101 --work W
+
+Results are stored per (street, point) in ``WORK/<street>/<point>/``; a point whose eval.json
+exists is read, not trained again.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+BIN = Path(sys.executable).parent
+
+# name: (steps, {dotted model-config field: value}). Knobs move one at a time around 1000 steps.
+POINTS: dict[str, tuple[int, dict]] = {
+    "steps-300": (300, {}),
+    "steps-600": (600, {}),
+    "steps-1000": (1000, {}),
+    "steps-1500 (idsplat-fast)": (1500, {}),
+    "steps-3000": (3000, {}),
+    "steps-1000, lidar every step": (1000, {"pipeline.model.lidar.every_n_steps": 1}),
+    "steps-1000, half initial Gaussians": (1000, {"pipeline.model.num_random_points": 10_000,
+                                                  "pipeline.model.max_lidar_points": 30_000}),
+    "steps-1000, Gaussian cap x1.5": (1000, {"pipeline.model.cap_factor": 1.5}),
+}
+DEFAULT_POINTS = ["steps-300", "steps-600", "steps-1000", "steps-1500 (idsplat-fast)",
+                  "steps-1000, lidar every step", "steps-1000, half initial Gaussians"]
+
+
+def train_point(street: Path, out: Path, steps: int, overrides: dict) -> None:
+    """The child process: one training, as ``ns-train idsplat-fast`` with ``steps`` would run it."""
+    from nerfstudio.scripts.train import _set_random_seed
+
+    from method_configs.idsplat import make_trainer_config
+
+    cfg = make_trainer_config("idsplat-fast", steps, (max(1, steps // 5), max(2, steps * 7 // 15)), fast=True)
+    cfg.pipeline.datamanager.dataparser.data = street
+    for path, value in overrides.items():
+        *parents, name = path.split(".")
+        target = cfg
+        for p in parents:
+            target = getattr(target, p)
+        if not hasattr(target, name):
+            raise SystemExit(f"pareto.py: no config field {path}")
+        setattr(target, name, value)
+    cfg.vis = "tensorboard"
+    cfg.output_dir = out
+    cfg.experiment_name = "point"
+    cfg.timestamp = "run"
+    cfg.save_config()
+    _set_random_seed(cfg.machine.seed)
+    trainer = cfg.setup(local_rank=0, world_size=1)
+    trainer.setup()
+    trainer.train()
+
+
+def measured(cmd: list[str]) -> dict:
+    """Run ``cmd`` (printed first, must succeed); its wall time, CPU time and peak RSS.
+    Peak RSS comes from a wrapper process whose only child is ``cmd``."""
+    print("$ " + " ".join(cmd), flush=True)
+    wrapper = ("import json, resource, subprocess, sys, time; t = time.perf_counter(); "
+               "rc = subprocess.run(sys.argv[1:]).returncode; w = time.perf_counter() - t; "
+               "u = resource.getrusage(resource.RUSAGE_CHILDREN); "
+               "print('MEASURED ' + json.dumps({'rc': rc, 'wall_s': w, 'cpu_s': u.ru_utime + u.ru_stime, "
+               "'peak_rss_gib': u.ru_maxrss / 2**20}))")
+    done = subprocess.run([sys.executable, "-c", wrapper, *cmd], capture_output=True, text=True)
+    sys.stdout.write(done.stdout[-2000:])
+    line = [x for x in done.stdout.splitlines() if x.startswith("MEASURED ")]
+    if done.returncode or not line or json.loads(line[-1][9:])["rc"]:
+        raise SystemExit(f"pareto.py: failed: {' '.join(cmd)}\n{done.stderr[-3000:]}")
+    return json.loads(line[-1][9:])
+
+
+def final_gaussians(run_dir: Path) -> int:
+    import torch
+
+    ckpt = sorted((run_dir / "nerfstudio_models").glob("step-*.ckpt"))[-1]
+    state = torch.load(ckpt, map_location="cpu", weights_only=True)["pipeline"]
+    return int(next(v.shape[0] for k, v in state.items() if k.endswith("gaussians.means")))
+
+
+
+
+def run_point(street: Path, work: Path, name: str) -> dict:
+    steps, overrides = POINTS[name]
+    out = work / name.replace(" ", "_").replace(",", "").replace("(", "").replace(")", "")
+    result_file = out / "result.json"
+    if result_file.is_file():
+        return json.loads(result_file.read_text())
+    out.mkdir(parents=True, exist_ok=True)
+    cost = measured([sys.executable, __file__, "--train-one", json.dumps([str(street), str(out), steps, overrides])])
+    run_dir = out / "point" / "idsplat-fast" / "run"
+    subprocess.run([str(BIN / "ns-eval"), "--load-config", str(run_dir / "config.yml"), "--output-path",
+                    str(out / "eval.json")], check=True, capture_output=True)  # fmt: skip
+    r = json.loads((out / "eval.json").read_text())["results"]
+    row = {"point": name, "steps": steps, **cost, "psnr": r.get("psnr"), "ssim": r.get("ssim"), "dpsnr": r.get("dpsnr"),
+           "mota@2m": r.get("mota@2m"), "lidar_depth": r.get("lidar_depth_median_sq_err"), "gaussians": final_gaussians(run_dir)}
+    result_file.write_text(json.dumps(row, indent=1))
+    return row
+
+
+def pareto_front(rows: list[dict], key: str) -> list[dict]:
+    """Rows not beaten by another row that is both faster (CPU time) and better in ``key``."""
+    return [r for r in rows if not any(o["cpu_s"] < r["cpu_s"] and (o[key] or -math.inf) > (r[key] or -math.inf)
+                                       for o in rows)]
+
+
+def table(rows: list[dict]) -> str:
+    cols = [("street", "{}"), ("point", "{}"), ("wall_s", "{:.0f}"), ("cpu_s", "{:.0f}"), ("peak_rss_gib", "{:.2f}"),
+            ("psnr", "{:.2f}"), ("ssim", "{:.3f}"), ("dpsnr", "{:.2f}"), ("mota@2m", "{:.3f}"),
+            ("lidar_depth", "{:.3f}"), ("gaussians", "{:,}")]  # fmt: skip
+    lines = ["| " + " | ".join(c for c, _ in cols) + " |", "|" + "---|" * len(cols)]
+    for r in rows:
+        lines.append("| " + " | ".join("-" if r.get(c) is None else f.format(r[c]) for c, f in cols) + " |")
+    return "\n".join(lines)
+
+
+def plot(rows: list[dict], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    for ax, key, label in zip(axes, ("psnr", "dpsnr"), ("PSNR (dB)", "DPSNR (dB)")):
+        for street in sorted({r["street"] for r in rows}):
+            mine = [r for r in rows if r["street"] == street and r.get(key) is not None]
+            ax.scatter([r["cpu_s"] / 60 for r in mine], [r[key] for r in mine], label=street)
+            for r in mine:
+                ax.annotate(r["point"].replace("steps-", ""), (r["cpu_s"] / 60, r[key]), fontsize=7,
+                            xytext=(3, 3), textcoords="offset points")  # fmt: skip
+            front = sorted(pareto_front(mine, key), key=lambda r: r["cpu_s"])
+            ax.plot([r["cpu_s"] / 60 for r in front], [r[key] for r in front], "--", lw=1)
+        ax.set_xlabel("training CPU time (min)")
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8)
+    fig.suptitle("Speed against accuracy (dashed: the Pareto front)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--train-one", help=argparse.SUPPRESS)
+    ap.add_argument("--preset", default="small", help="built-in street preset")
+    ap.add_argument("--seeds", type=int, nargs="+", default=[100])
+    ap.add_argument("--points", nargs="+", default=DEFAULT_POINTS, choices=list(POINTS))
+    ap.add_argument("--work", type=Path, default=REPO / "outputs" / "pareto")
+    ap.add_argument("--table", type=Path, default=None, help="also write the markdown table here")
+    ap.add_argument("--plot", type=Path, default=None, help="write the Pareto plot (PNG) here")
+    args = ap.parse_args()
+    if args.train_one:
+        street, out, steps, overrides = json.loads(args.train_one)
+        train_point(Path(street), Path(out), int(steps), overrides)
+        return
+    sys.path.insert(0, str(REPO))
+    rows = []
+    for seed in args.seeds:
+        name = f"synth_{args.preset}_{seed}"
+        street = args.work / "streets" / name
+        if not street.is_dir():
+            subprocess.run([str(BIN / "idsplat-synth"), "--preset", args.preset, "--seed", str(seed), "--out",
+                            str(args.work / "streets"), "--quiet"], check=True)  # fmt: skip
+        prep_file = args.work / name / "preprocess.json"
+        if not prep_file.is_file():
+            prep_file.parent.mkdir(parents=True, exist_ok=True)
+            prep_file.write_text(json.dumps(measured([str(BIN / "idsplat-preprocess"), "--data", str(street)])))
+        prep = json.loads(prep_file.read_text())
+        print(f"{name}: preprocessing {prep['wall_s']:.0f} s wall, {prep['cpu_s']:.0f} s CPU", flush=True)
+        for point in args.points:
+            rows.append({"street": name, **run_point(street, args.work / name, point)})
+            print(table(rows[-1:]).splitlines()[-1], flush=True)
+    text = table(rows)
+    print("\n" + text)
+    if args.table:
+        args.table.write_text(text + "\n")
+    if args.plot:
+        plot(rows, args.plot)
+        print("wrote", args.plot)
+
+
+if __name__ == "__main__":
+    main()
