@@ -34,8 +34,10 @@ GARDEN = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "gspla
 STREET = Path.home() / ".cache" / "idsplat_ns" / "synthetic" / "synth_small_0"
 
 
-def make_scene(n: int, width: int, height: int, seed: int = 0):
-    d = np.load(GARDEN)
+def make_scene(n: int, width: int, height: int, seed: int = 0, path: Path = GARDEN, anisotropic: bool = False):
+    """N Gaussians from the garden points and its camera 0 at ``width`` x ``height`` (CPU tensors);
+    ``anisotropic``: the 3-NN scale times U(0.5, 2) per axis (so that rotations get a gradient)."""
+    d = np.load(path)
     rng = np.random.default_rng(seed)
     pts = d["means3d"]
     idx = rng.choice(len(pts), n, replace=n > len(pts))
@@ -46,9 +48,12 @@ def make_scene(n: int, width: int, height: int, seed: int = 0):
     K = torch.from_numpy(d["Ks"][:1]).float().clone()
     K[:, 0] *= width / float(d["width"])
     K[:, 1] *= height / float(d["height"])
+    quats = torch.randn(n, 4, generator=g)
+    scales = torch.from_numpy(s).float()[:, None].repeat(1, 3)
+    if anisotropic:
+        scales = scales * (0.5 + 1.5 * torch.rand(n, 3, generator=g))
     return dict(
-        means=torch.from_numpy(pts).float(), quats=torch.randn(n, 4, generator=g),
-        scales=torch.from_numpy(s).float()[:, None].repeat(1, 3),
+        means=torch.from_numpy(pts).float(), quats=quats, scales=scales,
         opacities=torch.rand(n, generator=g) * 0.9 + 0.05, features=torch.rand(n, 16, generator=g),
         viewmats=torch.from_numpy(d["viewmats"][:1]).float(), Ks=K,
     )  # fmt: skip

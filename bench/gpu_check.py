@@ -41,6 +41,9 @@ import torch
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+sys.path.insert(0, str(REPO / "bench"))
+
+from bench_rasterizer import make_scene  # noqa: E402
 from idsplat_ns.render import rasterize_camera, rasterize_lidar  # noqa: E402
 
 T0 = time.perf_counter()
@@ -52,27 +55,8 @@ BUILD_SNIPPET = "import time; t=time.time(); from gsplat.cuda._backend import _C
 
 @functools.lru_cache(maxsize=4)
 def garden_scene(path: Path, n: int, width: int, height: int, seed: int = 0) -> dict:
-    """N Gaussians from the garden points and its camera 0 at ``width`` x ``height`` (CPU tensors)."""
-    from scipy.spatial import cKDTree
-
-    d = np.load(path)
-    rng = np.random.default_rng(seed)
-    pts = d["means3d"][rng.choice(len(d["means3d"]), n, replace=n > len(d["means3d"]))]
-    if n > len(d["means3d"]):
-        pts = pts + rng.normal(scale=0.01, size=pts.shape)
-    dist, _ = cKDTree(pts).query(pts, k=4)
-    s = np.sqrt((dist[:, 1:] ** 2).mean(1)).clip(1e-4, None)
-    g = torch.Generator().manual_seed(seed)
-    K = torch.from_numpy(d["Ks"][:1]).float().clone()
-    K[:, 0] *= width / float(d["width"])
-    K[:, 1] *= height / float(d["height"])
-    return dict(
-        means=torch.from_numpy(pts).float(), quats=torch.randn(n, 4, generator=g),
-        # anisotropic, so that the rotations get a gradient
-        scales=torch.from_numpy(s).float()[:, None] * (0.5 + 1.5 * torch.rand(n, 3, generator=g)),
-        opacities=torch.rand(n, generator=g) * 0.9 + 0.05, features=torch.rand(n, 16, generator=g),
-        viewmats=torch.from_numpy(d["viewmats"][:1]).float(), Ks=K,
-    )  # fmt: skip
+    """N Gaussians from the garden points (anisotropic scales) and its camera 0 (CPU tensors)."""
+    return make_scene(n, width, height, seed, path=path, anisotropic=True)
 
 
 def lidar_rays(num_az: int = 2650, num_el: int = 64) -> tuple[torch.Tensor, torch.Tensor]:  # -> [R], [R]
