@@ -12,7 +12,7 @@ from torch import Tensor
 from ..errors import IDSplatError
 from .projection import Projection, project_gaussians
 from .rolling_shutter import CameraMotion
-from .tile_composite import CompositePlan, TileCoefficients, TileComposite, default_block_elems, pixel_basis
+from .tile_composite import CompositePlan, TileCoefficients, TileComposite, pixel_basis
 from .tiles import intersect_tiles, tiles_to_image
 
 
@@ -183,7 +183,7 @@ def rasterize_projected(
     coeffs = TileCoefficients.apply(per_gaussian.index_select(0, gid), cx, cy)
     plan = CompositePlan(
         tile_offsets=isects.tile_offsets, gaussian_ids=gid,
-        basis=pixel_basis(b, device, torch.float64), block_elems=chunk_elems or default_block_elems(device),
+        basis=pixel_basis(b, device, torch.float64), block_elems=chunk_elems,
     )  # fmt: skip
     pix, crossing = TileComposite.apply(coeffs, feats, plan)
     out = tiles_to_image(pix, isects, width, height)

@@ -30,7 +30,7 @@ from torch import Tensor
 from ..errors import IDSplatError
 from .projection import covariance_3d
 from .tile_composite import (
-    CompositePlan, TileComposite, default_block_elems, monomial_basis, quadratic_coefficients,
+    CompositePlan, TileComposite, monomial_basis, quadratic_coefficients,
 )  # fmt: skip
 from .tiles import intersect_tiles
 
@@ -316,7 +316,7 @@ def rasterize_lidar(
         cutoff[ray_tile, slot] = ray_cutoff.detach().to(dtype)
     plan = CompositePlan(
         tile_offsets=isects.tile_offsets, gaussian_ids=gid, basis=monomial_basis(ex, ey),
-        slot_valid=slot_valid, block_elems=chunk_elems or default_block_elems(device),
+        slot_valid=slot_valid, block_elems=chunk_elems,
         cutoff_depths=cutoff, gaussian_depths=None if cutoff is None else flat_range.detach(),
     )  # fmt: skip
     composited = TileComposite.apply(coeffs, feats, plan)

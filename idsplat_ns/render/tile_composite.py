@@ -142,7 +142,7 @@ class CompositePlan:
     gaussian_ids: Tensor  # [I] int64 row of ``feats`` for each intersection
     basis: Tensor  # [6, S] shared by all tiles, or [T, 6, S] per tile (irregular samples), float64
     slot_valid: Optional[Tensor] = None  # [T, S] float 1/0, 0 for padding samples (lidar)
-    block_elems: int = DEFAULT_BLOCK_ELEMS  # target (row, sample) values per block
+    block_elems: Optional[int] = None  # target (row, sample) values per block (None: the device's default)
     cutoff_depths: Optional[Tensor] = None  # [T, S] line-of-sight cut-off per sample (-inf: none)
     gaussian_depths: Optional[Tensor] = None  # [G] depth of each feature row, for the cut-off test
 
@@ -323,14 +323,15 @@ class TileComposite(torch.autograd.Function):
         # cache (a pass over a DRAM-sized block costs several times more per value).
         nonempty = torch.nonzero(counts > 0).squeeze(1)
         nonempty = nonempty[torch.argsort(counts[nonempty], descending=True, stable=True)]
-        group = max(1, plan.block_elems // (_MIN_BLOCK_ROWS * slots))
+        block_elems = plan.block_elems or default_block_elems(device)
+        group = max(1, block_elems // (_MIN_BLOCK_ROWS * slots))
         for g0 in range(0, nonempty.numel(), group):
             tiles = nonempty[g0 : g0 + group]
             carry = torch.zeros(tiles.numel(), slots, device=device, dtype=dtype)  # log T so far
             start = 0
             while tiles.numel() > 0:
                 left = counts[tiles] - start
-                lb = min(max(_MIN_BLOCK_ROWS, plan.block_elems // (tiles.numel() * slots)), int(left.max()))
+                lb = min(max(_MIN_BLOCK_ROWS, block_elems // (tiles.numel() * slots)), int(left.max()))
                 blk, carry = _forward_block(st, tiles, start, carry, lb)
                 blocks.append(blk)
                 start += lb
