@@ -28,10 +28,11 @@ def synth_street(data_dir: Path, preset: str, seed: int, *extra: str) -> None:
 
 
 def train_and_evaluate(street: Path, name: str, output_dir: Path, steps: int, options: list[str], train_args: str = "",
-                       skip_existing: bool = False) -> dict:
+                       skip_existing: bool = False, after_data: list[str] = ()) -> dict:
     """``ns-train idsplat-fast`` with ``options`` into ``output_dir/name``, then ``ns-eval``; the
-    results of eval.json plus ``train_s`` (training wall time). With ``skip_existing`` a run whose
-    eval.json exists is read, not repeated."""
+    results of eval.json plus ``train_s`` (training wall time). ``after_data`` follows the
+    dataparser's ``--data`` (the subcommands of optional configs, such as the smoothing's, and their
+    options). With ``skip_existing`` a run whose eval.json exists is read, not repeated."""
     run_dir = output_dir / name / "idsplat-fast" / "run"
     eval_json = output_dir / name / "eval.json"
     timing = output_dir / name / "train_seconds.json"
@@ -40,7 +41,7 @@ def train_and_evaluate(street: Path, name: str, output_dir: Path, steps: int, op
             train_s = run([
                 str(BIN / "ns-train"), "idsplat-fast", "--vis", "tensorboard", "--output-dir", str(output_dir),
                 "--experiment-name", name, "--timestamp", "run", "--max-num-iterations", str(steps),
-                *options, *shlex.split(train_args), "idsplat-pandaset", "--data", str(street),
+                *options, *shlex.split(train_args), "idsplat-pandaset", "--data", str(street), *after_data,
             ])
             timing.write_text(json.dumps({"train_s": train_s}))
         run([str(BIN / "ns-eval"), "--load-config", str(run_dir / "config.yml"), "--output-path", str(eval_json)])
