@@ -59,7 +59,7 @@ def _table(rows: dict[str, dict], first: str) -> None:
     print("\n| " + " | ".join(header) + " |")
     print("|" + "---|" * len(header))
     for name, r in rows.items():
-        cells = [name] + [f"{r[k]:+.2f}" if k == "delta" else f"{r[k]:.3f}" if k in r else "-" for k, _ in COLUMNS]
+        cells = [name] + [("-" if k not in r else f"{r[k]:+.2f}" if k == "delta" else f"{r[k]:.3f}") for k, _ in COLUMNS]
         print("| " + " | ".join(cells + [f"{r['train_s']:.0f}"]) + " |")
 
 
