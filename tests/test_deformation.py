@@ -154,3 +154,14 @@ def test_the_offset_is_applied_in_the_canonical_frame_before_the_pose():
     assert torch.allclose(means[0], torch.tensor([1.0, 0.0, 0.0]))  # background: as it is
     assert torch.allclose(means[1], torch.tensor([5.0, 1.0, 0.0]))  # rigid instance: R p + t
     assert torch.allclose(means[2], torch.tensor([5.0, 1.5, 0.0]))  # canonical x becomes world y
+
+
+def test_the_initial_field_depends_on_the_seed_only():
+    times = np.array([0.0, 1.0])
+    a = InstanceDeformation(times, np.array([1]), seed=3)
+    torch.rand(1000)  # the global generator moves on
+    b = InstanceDeformation(times, np.array([1]), seed=3)
+    c = InstanceDeformation(times, np.array([1]), seed=4)
+    for pa, pb in zip(a.parameters(), b.parameters()):
+        assert torch.equal(pa, pb)
+    assert not torch.equal(a.mlp[0].weight, c.mlp[0].weight)

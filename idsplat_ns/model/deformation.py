@@ -91,11 +91,15 @@ class InstanceDeformation(nn.Module):
         self.register_buffer("step_times", torch.from_numpy(step_times))
         self.register_buffer("instance_ids", torch.from_numpy(ids))
         self.codes = nn.Parameter(0.1 * torch.randn(len(ids), len(step_times), latent_dim, generator=gen))
-        self.mlp = nn.Sequential(
-            nn.Linear(3 + 6 * self.position_freqs + latent_dim, hidden), nn.ReLU(),
-            nn.Linear(hidden, hidden), nn.ReLU(),
-            nn.Linear(hidden, 3),
-        )
+        # The layers draw their initial weights from torch's global generator: seeded and restored
+        # here, so that the field starts the same whatever ran before.
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(seed)
+            self.mlp = nn.Sequential(
+                nn.Linear(3 + 6 * self.position_freqs + latent_dim, hidden), nn.ReLU(),
+                nn.Linear(hidden, hidden), nn.ReLU(),
+                nn.Linear(hidden, 3),
+            )
         nn.init.zeros_(self.mlp[-1].weight)
         nn.init.zeros_(self.mlp[-1].bias)
 
