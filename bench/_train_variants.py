@@ -11,6 +11,8 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 BIN = Path(sys.executable).parent
 
 
@@ -48,6 +50,15 @@ def train_and_evaluate(street: Path, name: str, output_dir: Path, steps: int, op
     results = json.loads(eval_json.read_text())["results"]
     results["train_s"] = json.loads(timing.read_text())["train_s"] if timing.is_file() else float("nan")
     return results
+
+
+def mean_rows(per_seed: dict[str, list[dict]]) -> dict[str, dict]:
+    """Per variant, the mean over streets of every number all its streets have."""
+    means = {}
+    for variant, results in per_seed.items():
+        keys = set.intersection(*(set(r) for r in results))
+        means[variant] = {k: float(np.mean([r[k] for r in results])) for k in keys if isinstance(results[0][k], (int, float))}
+    return means
 
 
 def print_table(rows: dict[str, dict], columns: tuple[tuple[str, str], ...], first: str = "variant") -> None:

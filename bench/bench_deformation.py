@@ -17,9 +17,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import numpy as np
-
-from _train_variants import print_table, synth_street, train_and_evaluate  # bench/ is on the path as a script
+from _train_variants import mean_rows, print_table, synth_street, train_and_evaluate  # bench/ is on the path as a script
 
 ORACLE = ["--pipeline.datamanager.instance-mode", "oracle"]
 VARIANTS = {
@@ -56,10 +54,7 @@ def main() -> None:
             per_seed[variant].append(rows[variant])
         print(f"\nseed {seed}")
         print_table(rows, COLUMNS)
-    means = {}
-    for variant, results in per_seed.items():
-        keys = set.intersection(*(set(r) for r in results))
-        means[variant] = {k: float(np.mean([r[k] for r in results])) for k in keys if isinstance(results[0][k], (int, float))}
+    means = mean_rows(per_seed)
     print(f"\nmean over seeds {' '.join(map(str, args.seeds))}")
     print_table(means, COLUMNS)
 

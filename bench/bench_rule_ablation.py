@@ -54,11 +54,16 @@ MOTA_EFFECT = 0.01  # verdict margins: mean MOTA@2m change ...
 CORNER_EFFECT = 0.03  # ... or mean relative corner-error change
 
 
+def config_names(path: str) -> list[str]:
+    """The field names of a dotted setting in ``PreprocessConfig`` (``registration.*`` is named as
+    the docs name it; it lives in the trajectory config)."""
+    names = path.split(".")
+    return ["trajectory", *names] if names[0] == "registration" else names
+
+
 def _with(path: str, value) -> Callable[[PreprocessConfig], PreprocessConfig]:
     """The config with the field at dotted ``path`` set to ``value`` (nested frozen dataclasses)."""
-    names = path.split(".")
-    if names[0] == "registration":  # named as the docs name it; it lives in the trajectory config
-        names = ["trajectory", *names]
+    names = config_names(path)
 
     def apply(c, names=tuple(names)):
         if len(names) == 1:

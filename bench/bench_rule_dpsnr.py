@@ -17,10 +17,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import numpy as np
-
-from _train_variants import synth_street, train_and_evaluate  # bench/ is on the path as a script
-from bench_rule_ablation import RULE_BY_NAME, Rule
+from _train_variants import mean_rows, synth_street, train_and_evaluate  # bench/ is on the path as a script
+from bench_rule_ablation import RULE_BY_NAME, Rule, config_names
 
 MIXED = ("no-vertical-motion", "no-tilt-motion", "no-heading-prior", "no-degenerate", "no-sparse-views",
          "no-refit", "no-segments")
@@ -33,9 +31,7 @@ SMOOTHING_SUBCOMMAND = "pipeline.datamanager.preprocess.smoothing:smoothing-conf
 def rule_arguments(rule: Rule) -> tuple[list[str], list[str]]:
     """The ``ns-train`` arguments that switch ``rule`` off: (before the dataparser, after ``--data``).
     Smoothing is an optional config, so its options follow its subcommand after the dataparser."""
-    names = rule.path.split(".")
-    if names[0] == "registration":
-        names = ["trajectory", *names]
+    names = config_names(rule.path)
     flag = PREFIX + ".".join(n.replace("_", "-") for n in names)
     value = str(rule.value)  # None, True, False and numbers as tyro reads them
     if names[0] == "smoothing":
@@ -91,11 +87,9 @@ def main() -> None:
             per_seed[variant].append(r)
         print(f"\nseed {seed}")
         _table(rows, "variant")
-    means = {}
+    means = mean_rows(per_seed)
     for variant, results in per_seed.items():
-        keys = set.intersection(*(set(r) for r in results))
-        means[variant] = {k: float(np.mean([r[k] for r in results])) for k in keys if isinstance(results[0][k], (int, float))}
-        if "delta" in keys:
+        if "delta" in means[variant]:
             worse = sum(r["delta"] < 0 for r in results)
             means[variant]["streets"] = f"{worse}/{len(results) - worse}"
     print(f"\nmean over seeds {' '.join(map(str, args.seeds))} (streets with lower/higher DPSNR than the defaults)")
