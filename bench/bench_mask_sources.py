@@ -6,6 +6,7 @@ MOTP@2m, precision, recall and identity switches of the moving vehicles (the obs
 streets) and the preprocessing time.
 
     .venv/bin/python bench/bench_mask_sources.py --preset small --seeds 100 101 102 103 104 --work WORK
+    .venv/bin/python bench/bench_mask_sources.py --sources "lidar motion" "lidar motion, points painted back through its masks"
 
 The preprocessing is ``ns-train``'s (``instance_tracks_for_mode``, self-supervised, training
 frames); stages are cached in ``WORK/cache-<seed>`` under keys that include the masks and their
@@ -20,6 +21,7 @@ from dataclasses import replace
 
 from idsplat_ns.eval.tracking import aggregate
 from idsplat_ns.eval.trajectory_eval import flatten_metrics, tracking_summary
+from idsplat_ns.instances.lidar_motion import LidarMotionConfig
 from idsplat_ns.instances.masks.config import MaskConfig
 from idsplat_ns.instances.masks.perturb import MaskNoiseConfig
 from idsplat_ns.instances.modes import instance_tracks_for_mode
@@ -37,17 +39,25 @@ SOURCES = {
         GT, mask_noise=MaskNoiseConfig(max_edge_px=6, miss_probability=0.3, spurious_per_sequence=3)),
     "GT, identities swapped in 10 % of images": replace(GT, mask_noise=replace(NO_NOISE, swap_probability=0.1)),
     "lidar motion": PreprocessConfig(masks=MaskConfig(kind="lidar-motion")),
+    "lidar motion, points painted back through its masks": PreprocessConfig(
+        masks=MaskConfig(kind="lidar-motion", lidar_motion=LidarMotionConfig(lift_own_points=False))),
 }
 
 
 def main() -> None:
     ap = street_arguments(__doc__.splitlines()[0])
     ap.set_defaults(seeds=[100, 101, 102, 103, 104])
+    ap.add_argument("--sources", nargs="+", default=list(SOURCES), metavar="NAME",
+                    help=f"rows to measure, by name (default: all of {list(SOURCES)})")
     args = ap.parse_args()
-    per_source: dict[str, list] = {name: [] for name in SOURCES}
-    seconds: dict[str, list[float]] = {name: [] for name in SOURCES}
+    unknown = [n for n in args.sources if n not in SOURCES]
+    if unknown:
+        raise SystemExit(f"--sources: unknown {unknown}; choose from {list(SOURCES)}")
+    sources = {name: SOURCES[name] for name in args.sources}
+    per_source: dict[str, list] = {name: [] for name in sources}
+    seconds: dict[str, list[float]] = {name: [] for name in sources}
     for seed, scene, train, cache in training_streets(args, "idsplat_masks_"):
-        for name, config in SOURCES.items():
+        for name, config in sources.items():
             if config.mask_noise is not None:  # a different damage per street
                 config = replace(config, mask_noise=replace(config.mask_noise, seed=seed))
             t0 = time.perf_counter()

@@ -239,3 +239,48 @@ def test_self_supervised_preprocessing_reads_no_ground_truth(tiny_street, tmp_pa
         frame = int(result.tracks.frame_indices[k])
         centres = [t.pose_at_frame(frame)[:3, 3] for t in truth if t.pose_at_frame(frame) is not None]
         assert min(np.linalg.norm(c[:2] - inst.poses[k][:2, 3]) for c in centres) < 4.0
+
+
+def test_tracks_are_lifted_from_their_own_points_with_the_pixel_each_lands_on(street, tmp_path):
+    """Direct lifting: every observation point is one of its track's cluster points at that
+    frame, painted with an image of the frame it projects into; nothing is lost to the masks'
+    hulls, erosion or the largest-cluster rule, so it keeps at least what painting keeps."""
+    from idsplat_ns.instances.lidar_motion import LidarMotionMaskSource
+    from idsplat_ns.instances.lidar_motion_lifting import lift_track_points
+    from idsplat_ns.instances.lifting import LiftingConfig, lift_instances
+
+    scene, _ = street
+    config = LidarMotionConfig()
+    masks = LidarMotionMaskSource(config).generate(scene, tmp_path / "masks", progress=False)
+    own = lift_track_points(scene, tmp_path / "masks", masks.labels, LiftingConfig(), progress=False)
+    painted = lift_instances(scene, masks, LiftingConfig(), progress=False)
+    tracks = {tr.track_id: tr for tr in moving_tracks(scene, config)}
+    assert own.observations and set(own.observations) <= set(tracks)
+    sweep_frames = [s.frame_index for s in scene.lidar if s.num_rays > 0]
+    for tid, observations in own.observations.items():
+        assert own.labels[tid] == masks.labels[tid]
+        clusters = {sweep_frames[c.frame]: c for c in tracks[tid].clusters}
+        for o in observations:
+            frame_index = int(scene.frame_indices[o.frame])
+            cluster = {tuple(p) for p in clusters[frame_index].points}
+            assert all(tuple(p) in cluster for p in o.points)
+            for i in np.unique(o.image_ids):
+                image = scene.images[i]
+                assert scene.closest_sweep(image.time).frame_index == frame_index
+                sel = o.image_ids == i
+                proj = image.project(o.points[sel])
+                assert proj.valid.all()
+                np.testing.assert_allclose(proj.uv, o.uv[sel], atol=1e-3)
+    n_own = sum(len(o.points) for v in own.observations.values() for o in v)
+    n_painted = sum(len(o.points) for v in painted.observations.values() for o in v)
+    assert n_own >= n_painted
+
+
+def test_a_lidar_motion_cache_without_its_points_says_what_to_do(street, tmp_path):
+    from idsplat_ns.errors import IDSplatError
+    from idsplat_ns.instances.lidar_motion_lifting import lift_track_points
+    from idsplat_ns.instances.lifting import LiftingConfig
+
+    scene, _ = street
+    with pytest.raises(IDSplatError, match="track_points.npz: missing; delete"):
+        lift_track_points(scene, tmp_path, {}, LiftingConfig(), progress=False)

@@ -17,7 +17,9 @@ users with no Grounded-SAM-2 files or no GPU).
    (a tall vehicle seen end-on is a ``bus``, so that its centre is completed to a bus length).
 5. **Masks**: each moving track's points, moved by its velocity to the image time, are projected
    into every camera and filled as their convex hull (nearer over farther), written in the mask
-   folder format, so that lifting, registration and smoothing take them unchanged.
+   folder format for the model; the tracks' own points are written beside them and become the
+   lifted observations (lidar_motion_lifting.py), so that registration and smoothing take them
+   unchanged.
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ from idsplat_ns.data.lidar import LidarSweep
 from idsplat_ns.data.scene import Scene
 from idsplat_ns.data.tracks import class_from_size_speed
 from idsplat_ns.errors import IDSplatError
+from idsplat_ns.instances.lidar_motion_lifting import save_track_points
 from idsplat_ns.instances.masks.base import InstanceMaskSet, MaskSource, mask_filename, write_instance_map, write_labels
 
 
@@ -94,6 +97,10 @@ class LidarMotionConfig:
     """Moving tracks seen in fewer sweeps are dropped."""
     mask_dilation_px: int = 3
     """Pixels by which the projected hull is grown (lidar points sit inside the silhouette)."""
+    lift_own_points: bool = True
+    """Lift each track's own cluster points as its observations (lidar_motion_lifting.py, ours)
+    instead of painting the lidar through its masks, where overlapping hulls hand a partly hidden
+    car's points to the object in front of it."""
     long_vehicle_height: float = 2.2
     """Metres: a vehicle track whose clusters' median height extent exceeds this is labelled
     ``bus`` (buses and lorries seen end-on show a car-sized face; the label gives the amodal-centre
@@ -435,6 +442,7 @@ class LidarMotionMaskSource(MaskSource):
         out_dir.mkdir(parents=True, exist_ok=True)
         tracks = moving_tracks(scene, self.config, progress)
         render_track_masks(scene, tracks, self.config, out_dir, progress)
+        save_track_points(out_dir, tracks, [s.frame_index for s in scene.lidar if s.num_rays > 0])
         labels = {tr.track_id: tr.label(self.config.long_vehicle_height) for tr in tracks}
         write_labels(out_dir, labels, {tr.track_id: {"frames": len(tr.clusters), "motion_score": tr.median_score(),
                                                       "speed": _finite_or_none(tr.mean_speed()),

@@ -24,6 +24,7 @@ from idsplat_ns.instances.smoothing import SmoothingConfig, smooth_trajectory
 from idsplat_ns.instances.smoothing.observability import translation_covariances
 from idsplat_ns.instances.smoothing.smoother import SmoothedTrajectory
 from idsplat_ns.instances.features.config import FeatureConfig, make_feature_extractor, resolve_feature_kind
+from idsplat_ns.instances.lidar_motion_lifting import lift_track_points
 from idsplat_ns.instances.lifting import LiftedInstances, LiftingConfig, lift_instances
 from idsplat_ns.instances.masks.base import InstanceMaskSet
 from idsplat_ns.instances.masks.config import MaskConfig, make_mask_source, resolve_mask_kind
@@ -279,10 +280,15 @@ def run_preprocessing(
 
     # 2. Point painting (lifting masks to lidar).
     t0 = time.perf_counter()
-    lift_key = hash_json({"masks": mask_key, "lifting": asdict(config.lifting), "format": LIFTING_FORMAT})
+    # The lidar-motion source's own points (not its masks' hulls painted back), unless its masks
+    # were perturbed (then the masks are what is measured).
+    own_points = masks.source == "lidar-motion" and config.masks.lidar_motion.lift_own_points
+    lift_key = hash_json({"masks": mask_key, "lifting": asdict(config.lifting), "format": LIFTING_FORMAT,
+                          "own_points": own_points})
     lifted, cached = _cached_file(
         cache_dir / f"lifting-{lift_key}.npz",
-        lambda: lift_instances(scene, masks, config.lifting, progress),
+        lambda: (lift_track_points(scene, masks.root, masks.labels, config.lifting, progress) if own_points
+                 else lift_instances(scene, masks, config.lifting, progress)),
         lambda r, p: r.save(p), LiftedInstances.load)
     n_obs = sum(len(v) for v in lifted.observations.values())
     timings.append(StageTiming("point painting", time.perf_counter() - t0, cached, f"{len(lifted.observations)} instances, {n_obs} observations"))

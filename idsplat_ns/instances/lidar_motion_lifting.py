@@ -1,0 +1,83 @@
+"""Lidar-motion instances lifted from their own points, not back through their masks.
+
+The lidar-motion source (lidar_motion.py) knows each instance's lidar points: its clusters. Lifting
+its masks back to lidar (lifting.py) loses some of them where the masks, drawn as hulls, overlap:
+a car behind a pedestrian in one camera hands the pedestrian the points inside the pedestrian's
+hull, and the mask erosion and the largest-cluster rule trim a partly seen car further. Here each
+cluster becomes the instance's observation at its sweep's frame as it is; every point takes the
+first image of that frame it lands in (its pixel is where registration reads colours and
+features), and points no camera sees are dropped, as painting would drop them.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from idsplat_ns.data.rolling_shutter import camera_paths, project_rolling
+from idsplat_ns.data.scene import Scene
+from idsplat_ns.errors import IDSplatError
+from idsplat_ns.instances.cache import load_npz, save_npz
+from idsplat_ns.instances.lifting import InstanceObservation, LiftedInstances, LiftingConfig
+
+TRACK_POINTS = "track_points.npz"
+"""File in a lidar-motion mask folder with each track's cluster points per sweep."""
+
+
+def save_track_points(out_dir: Path, tracks: list, sweep_frame_indices: list[int]) -> None:
+    """Write the clusters of ``tracks`` (lidar_motion.MotionTrack) to ``out_dir/TRACK_POINTS``;
+    ``sweep_frame_indices[k]`` is the dataset frame index of the k-th sweep the clusters count."""
+    arrays, index = {}, {}
+    for tr in tracks:
+        frames = []
+        for c in tr.clusters:
+            f = int(sweep_frame_indices[c.frame])
+            arrays[f"{tr.track_id}_{f}_points"] = c.points
+            arrays[f"{tr.track_id}_{f}_times"] = c.times
+            frames.append(f)
+        index[str(tr.track_id)] = frames
+    save_npz(Path(out_dir) / TRACK_POINTS, arrays, index)
+
+
+def lift_track_points(scene: Scene, mask_dir: Path, labels: dict[int, str], config: LiftingConfig,
+                      progress: bool = True) -> LiftedInstances:
+    """:class:`LiftedInstances` of the tracks stored in ``mask_dir`` by :func:`save_track_points`."""
+    path = Path(mask_dir) / TRACK_POINTS
+    if not path.is_file():
+        raise IDSplatError(f"{path}: missing; delete {mask_dir} so that the lidar-motion masks are made again")
+    data, index = load_npz(path)
+    position = {int(f): k for k, f in enumerate(scene.frame_indices)}
+    # Each image belongs to the frame of its closest sweep, as in painting.
+    images_of_frame: dict[int, list[int]] = defaultdict(list)
+    for i, image in enumerate(scene.images):
+        sweep = scene.closest_sweep(image.time)
+        if sweep is not None:
+            images_of_frame[int(sweep.frame_index)].append(i)
+    paths = camera_paths(scene.images) if config.rolling_shutter else {}
+    observations: dict[int, list[InstanceObservation]] = {}
+    for key, frames in tqdm(index.items(), desc="lidar motion: lifting", disable=not progress):
+        tid = int(key)
+        obs = []
+        for f in frames:
+            if f not in position:
+                continue
+            pts, times = data[f"{tid}_{f}_points"], data[f"{tid}_{f}_times"]
+            image_ids = np.full(len(pts), -1, np.int32)
+            uv = np.zeros((len(pts), 2), np.float32)
+            for i in images_of_frame.get(f, []):
+                image = scene.images[i]
+                proj, _ = project_rolling(pts, image, paths.get(image.camera))
+                take = proj.valid & (image_ids < 0)
+                image_ids[take] = i
+                # float32 can round a coordinate just inside the image up onto its edge: keep it inside.
+                inside = np.nextafter(np.array([image.intrinsics.width, image.intrinsics.height], np.float32), np.float32(0))
+                uv[take] = np.minimum(proj.uv[take].astype(np.float32), inside)
+            seen = image_ids >= 0
+            if seen.sum() >= config.min_points:
+                obs.append(InstanceObservation(position[f], pts[seen], image_ids[seen], uv[seen], times[seen].astype(np.float64)))
+        if obs:
+            observations[tid] = sorted(obs, key=lambda o: o.frame)
+    return LiftedInstances({k: labels.get(k, "object") for k in observations}, observations)
