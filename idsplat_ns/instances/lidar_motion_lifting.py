@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from collections import defaultdict
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from tqdm import tqdm
@@ -21,14 +22,17 @@ from idsplat_ns.data.rolling_shutter import camera_paths, project_rolling
 from idsplat_ns.data.scene import Scene
 from idsplat_ns.errors import IDSplatError
 from idsplat_ns.instances.cache import load_npz, save_npz
-from idsplat_ns.instances.lifting import InstanceObservation, LiftedInstances, LiftingConfig
+from idsplat_ns.instances.lifting import InstanceObservation, LiftedInstances, LiftingConfig, pixels_inside
+
+if TYPE_CHECKING:  # lidar_motion imports this module to write the file
+    from idsplat_ns.instances.lidar_motion import MotionTrack
 
 TRACK_POINTS = "track_points.npz"
 """File in a lidar-motion mask folder with each track's cluster points per sweep."""
 
 
-def save_track_points(out_dir: Path, tracks: list, sweep_frame_indices: list[int]) -> None:
-    """Write the clusters of ``tracks`` (lidar_motion.MotionTrack) to ``out_dir/TRACK_POINTS``;
+def save_track_points(out_dir: Path, tracks: list[MotionTrack], sweep_frame_indices: list[int]) -> None:
+    """Write the clusters of ``tracks`` to ``out_dir/TRACK_POINTS``;
     ``sweep_frame_indices[k]`` is the dataset frame index of the k-th sweep the clusters count."""
     arrays, index = {}, {}
     for tr in tracks:
@@ -72,9 +76,7 @@ def lift_track_points(scene: Scene, mask_dir: Path, labels: dict[int, str], conf
                 proj, _ = project_rolling(pts, image, paths.get(image.camera))
                 take = proj.valid & (image_ids < 0)
                 image_ids[take] = i
-                # float32 can round a coordinate just inside the image up onto its edge: keep it inside.
-                inside = np.nextafter(np.array([image.intrinsics.width, image.intrinsics.height], np.float32), np.float32(0))
-                uv[take] = np.minimum(proj.uv[take].astype(np.float32), inside)
+                uv[take] = pixels_inside(proj.uv[take], image)
             seen = image_ids >= 0
             if seen.sum() >= config.min_points:
                 obs.append(InstanceObservation(position[f], pts[seen], image_ids[seen], uv[seen], times[seen].astype(np.float64)))

@@ -176,6 +176,13 @@ class _UnionFind:
             self.parent[max(ra, rb)] = min(ra, rb)  # the smaller ID survives
 
 
+def pixels_inside(uv: np.ndarray, image) -> np.ndarray:  # uv: [N, 2] -> [N, 2] float32
+    """Pixel coordinates of points inside ``image`` as float32, kept inside: float32 can round a
+    coordinate just inside the image up onto its edge."""
+    edge = np.nextafter(np.array([image.intrinsics.width, image.intrinsics.height], np.float32), np.float32(0))
+    return np.minimum(np.asarray(uv).astype(np.float32), edge)
+
+
 def paint_points(scene: Scene, masks: InstanceMaskSet, config: LiftingConfig, progress: bool = True):
     """Per frame and instance ID, the lidar point indices (into that frame's returned points) and the
     image index and pixel each was painted from; also the set of IDs seen in each image."""
@@ -208,11 +215,9 @@ def paint_points(scene: Scene, masks: InstanceMaskSet, config: LiftingConfig, pr
         row = np.clip((proj.uv[idx, 1] * sy).astype(np.int64), 0, ids.shape[0] - 1)
         hit = eroded[row, col]
         co_visible.append(set(np.unique(ids[ids > 0]).tolist()))
-        # float32 can round a coordinate just inside the image up onto its edge: keep it inside.
-        inside = np.nextafter(np.array([image.intrinsics.width, image.intrinsics.height], np.float32), np.float32(0))
         for k in np.unique(hit[hit > 0]):
             sel = hit == k
-            painted[frame][int(k)].append((idx[sel], img_idx, np.minimum(proj.uv[idx[sel]].astype(np.float32), inside)))
+            painted[frame][int(k)].append((idx[sel], img_idx, pixels_inside(proj.uv[idx[sel]], image)))
     return painted, co_visible, sweep_cache
 
 
