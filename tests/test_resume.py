@@ -139,6 +139,13 @@ def test_kill_during_training_then_the_resume_command(tiny_street: Path, tmp_pat
     assert f"(step {before}): {20 - before - 1} of 20 steps left" in " ".join(done.stdout.split())
     assert checkpoint_step(latest_checkpoint(run / "nerfstudio_models")) == 19
 
+    # The same command on the finished run trains nothing and ends cleanly.
+    again = subprocess.run([_bin("ns-train"), "idsplat-fast", "--load-config", str(run / "config.yml")],
+                           env=env, capture_output=True, text=True, timeout=600)
+    assert again.returncode == 0, again.stderr[-2000:]
+    assert "nothing to train" in " ".join(again.stdout.split())
+    assert checkpoint_step(latest_checkpoint(run / "nerfstudio_models")) == 19
+
 
 @pytest.mark.slow
 def test_kill_during_preprocessing_then_rerun_gives_the_same_cache(tiny_street: Path, tmp_path: Path) -> None:

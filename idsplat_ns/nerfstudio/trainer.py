@@ -7,7 +7,7 @@ Three changes to nerfstudio's behaviour, each needed for ``kill -9`` then the sa
 - A run folder that already holds checkpoints resumes from the latest one (``--load-config
   RUN/config.yml`` re-runs the same folder; so does a fixed ``--timestamp``), and
   ``--max-num-iterations`` stays the run's total: a run killed at step 700 of 1500 trains 800
-  more, not 1500 more as nerfstudio would.
+  more, not 1500 more as nerfstudio would; a finished run trains nothing and ends cleanly.
 - After loading, the optimizers are rebuilt on the model's current tensors: loading a checkpoint
   reallocates the Gaussians (MCMC grew them) and may rebuild the trajectories, and nerfstudio's
   optimizers, made before the load, would otherwise keep stepping the discarded tensors.
@@ -93,6 +93,16 @@ class IDSplatTrainer(Trainer):
             f"Resuming from {path} (step {step}): {self.config.max_num_iterations} of {total} steps left. "
             "Delete the run folder to start over."
         )
+
+    def train(self) -> None:
+        """nerfstudio's training loop, except for a resumed run with no step left: that one only
+        says so (the same command twice, e.g. ``make demo``; nerfstudio's end-of-training
+        statistics would fail there with no step logged)."""
+        if self._start_step > 0 and self.config.max_num_iterations == 0:
+            CONSOLE.print(f"The run already holds its last step ({self.step}): nothing to train. "
+                          "Delete the run folder to start over.")
+            return
+        super().train()
 
     def save_checkpoint(self, step: int) -> None:
         """nerfstudio's checkpoint, written under a temporary name and renamed."""
