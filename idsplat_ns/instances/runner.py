@@ -291,7 +291,9 @@ def run_preprocessing(
                  else lift_instances(scene, masks, config.lifting, progress)),
         lambda r, p: r.save(p), LiftedInstances.load)
     n_obs = sum(len(v) for v in lifted.observations.values())
-    timings.append(StageTiming("point painting", time.perf_counter() - t0, cached, f"{len(lifted.observations)} instances, {n_obs} observations"))
+    how = "the tracks' own points, " if own_points else ""
+    timings.append(StageTiming("point painting", time.perf_counter() - t0, cached,
+                               f"{how}{len(lifted.observations)} instances, {n_obs} observations"))
 
     # 3. Point features (not needed by the centroid ablation).
     features: Optional[PointFeatures] = None
