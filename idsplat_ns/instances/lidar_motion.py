@@ -306,9 +306,14 @@ def associate(clusters_per_sweep: list[list[MotionCluster]], sweep_times: np.nda
     return tracks
 
 
+def motion_sweeps(scene: Scene) -> list[LidarSweep]:
+    """The sweeps that a cluster's ``frame`` counts: those with rays."""
+    return [s for s in scene.lidar if s.num_rays > 0]
+
+
 def moving_tracks(scene: Scene, config: LidarMotionConfig, progress: bool = False) -> list[MotionTrack]:
     """The moving objects of ``scene``'s lidar, numbered 1..N in order of first appearance."""
-    sweeps = [s for s in scene.lidar if s.num_rays > 0]
+    sweeps = motion_sweeps(scene)
     if not sweeps:
         raise IDSplatError(f"scene {scene.name}: no lidar sweeps; the lidar-motion instance source needs lidar")
     keys, heights = ground_heights(sweeps, config.ground_cell, config.ground_rank)
@@ -394,7 +399,7 @@ def merge_parts(tracks: list[MotionTrack], config: LidarMotionConfig) -> list[Mo
 def render_track_masks(scene: Scene, tracks: list[MotionTrack], config: LidarMotionConfig, out_dir: Path,
                        progress: bool = False) -> None:
     """Write one instance map per image: each track's points at the image time, hull-filled."""
-    sweep_frames = [s.frame_index for s in scene.lidar if s.num_rays > 0]
+    sweep_frames = [s.frame_index for s in motion_sweeps(scene)]
     by_frame: dict[int, list[tuple[MotionTrack, MotionCluster]]] = {}
     for tr in tracks:
         for c in tr.clusters:
@@ -442,7 +447,7 @@ class LidarMotionMaskSource(MaskSource):
         out_dir.mkdir(parents=True, exist_ok=True)
         tracks = moving_tracks(scene, self.config, progress)
         render_track_masks(scene, tracks, self.config, out_dir, progress)
-        save_track_points(out_dir, tracks, [s.frame_index for s in scene.lidar if s.num_rays > 0])
+        save_track_points(out_dir, tracks, [s.frame_index for s in motion_sweeps(scene)])
         labels = {tr.track_id: tr.label(self.config.long_vehicle_height) for tr in tracks}
         write_labels(out_dir, labels, {tr.track_id: {"frames": len(tr.clusters), "motion_score": tr.median_score(),
                                                       "speed": _finite_or_none(tr.mean_speed()),

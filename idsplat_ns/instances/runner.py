@@ -24,6 +24,7 @@ from idsplat_ns.instances.smoothing import SmoothingConfig, smooth_trajectory
 from idsplat_ns.instances.smoothing.observability import translation_covariances
 from idsplat_ns.instances.smoothing.smoother import SmoothedTrajectory
 from idsplat_ns.instances.features.config import FeatureConfig, make_feature_extractor, resolve_feature_kind
+from idsplat_ns.instances.lidar_motion import LidarMotionMaskSource
 from idsplat_ns.instances.lidar_motion_lifting import lift_track_points
 from idsplat_ns.instances.lifting import LiftedInstances, LiftingConfig, lift_instances
 from idsplat_ns.instances.masks.base import InstanceMaskSet
@@ -278,11 +279,11 @@ def run_preprocessing(
         masks = InstanceMaskSet(noisy_dir, load_mask_set(noisy_dir).labels, f"{masks.source}+noise")
     timings.append(StageTiming("mask generation", time.perf_counter() - t0, cached, masks.source))
 
-    # 2. Point painting (lifting masks to lidar).
+    # 2. Point painting (lifting masks to lidar), or for lidar motion its tracks' own points (not
+    # its masks' hulls painted back), unless its masks were perturbed (then the masks are what is
+    # measured).
     t0 = time.perf_counter()
-    # The lidar-motion source's own points (not its masks' hulls painted back), unless its masks
-    # were perturbed (then the masks are what is measured).
-    own_points = masks.source == "lidar-motion" and config.masks.lidar_motion.lift_own_points
+    own_points = masks.source == LidarMotionMaskSource.name and config.masks.lidar_motion.lift_own_points
     lift_key = hash_json({"masks": mask_key, "lifting": asdict(config.lifting), "format": LIFTING_FORMAT,
                           "own_points": own_points})
     lifted, cached = _cached_file(

@@ -78,7 +78,7 @@ class IDSplatTrainer(Trainer):
             raise IDSplatError(f"{path}: unreadable checkpoint ({type(err).__name__}); delete it to resume from an earlier one") from None
         step = int(state["step"])
         self._start_step = step + 1
-        self.step = step  # a run with nothing left to train saves this step again, not step 0
+        self.step = step  # where the loop goes on (and what a finished run reports)
         self.pipeline.load_pipeline(state["pipeline"], step)
         self.optimizers = self.setup_optimizers()  # on the tensors the load allocated (module docstring)
         self.optimizers.load_optimizers(state["optimizers"])
