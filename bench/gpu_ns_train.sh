@@ -1,0 +1,87 @@
+#!/usr/bin/env bash
+# ns-train idsplat (the paper's settings) and ns-eval on a GPU machine that has torch but no
+# nerfstudio, with a wall-clock limit on the training:
+#
+#   bench/gpu_ns_train.sh OUT [TRAIN_SECONDS] [PRESET] [SEED] [MODE] [ns-train args...]
+#
+# The wheels the machine lacks (nerfstudio, gsplat, GTSAM...: bench/gpu_wheels.sh makes them here)
+# are expected in .whl/ (WHEELS=none where the environment has everything). open3d does not fit a
+# device call, so the instance mode defaults to oracle (annotation boxes: no registration, which
+# needs open3d).
+# gsplat's CUDA code is compiled while the street is generated. The run saves a checkpoint every
+# 500 steps (SAVE_EVERY); when TRAIN_SECONDS have passed it is stopped (SIGINT) and the last checkpoint is
+# evaluated. OUT receives train.log, eval.json, gpu_memory.csv and summary.json.
+set -u
+OUT=${1:?usage: bench/gpu_ns_train.sh OUT [TRAIN_SECONDS] [PRESET] [SEED] [MODE] [ns-train args...]}
+SECS=${2:-300}
+PRESET=${3:-bench}
+SEED=${4:-100}
+MODE=${5:-oracle}
+shift $(( $# < 5 ? $# : 5 ))
+PY=${PYTHON:-python3}
+mkdir -p "$OUT"
+T0=$(date +%s)
+stamp() { echo "[$(( $(date +%s) - T0 )) s] $*" | tee -a "$OUT/summary.log"; }
+
+SITE=${IDSPLAT_SITE:-/tmp/site}
+WHEELS=${WHEELS:-.whl}  # "none" where the environment has the dependencies
+if [ "$WHEELS" != none ] && ls "$WHEELS"/*.whl >/dev/null 2>&1; then
+    $PY -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target "$SITE" "$WHEELS"/*.whl || exit 1
+fi
+export PYTHONPATH="$SITE:$PWD${PYTHONPATH:+:$PYTHONPATH}"
+# The project itself, for nerfstudio's entry points (method and dataparsers).
+$PY -m pip install -q --no-index --no-deps --no-build-isolation --no-cache-dir --upgrade --target "$SITE" . || exit 1
+stamp "installed"
+# Fail in seconds, not after the build, where this Python lacks something the run imports.
+$PY -c "import method_configs.idsplat, nerfstudio.scripts.train, nerfstudio.scripts.eval" || exit 1
+
+if $PY -c 'import torch, sys; sys.exit(0 if torch.cuda.is_available() else 1)'; then
+    export MAX_JOBS=${MAX_JOBS:-$(nproc)} TORCH_CUDA_ARCH_LIST=${TORCH_CUDA_ARCH_LIST:-9.0}
+    $PY -c "from gsplat.cuda._backend import _C; print('gsplat compiled:', _C is not None)" >"$OUT/gsplat_build.log" 2>&1 &
+    BUILD=$!
+    (while sleep 2; do nvidia-smi --query-gpu=memory.used --format=csv,noheader,nounits; done) >"$OUT/gpu_memory.csv" 2>/dev/null &
+    SMI=$!
+fi
+
+export IDSPLAT_CACHE=${IDSPLAT_CACHE:-/tmp/idsplat_cache}
+$PY -m idsplat_ns.data.synthetic.cli --preset "$PRESET" --seed "$SEED" --out "$IDSPLAT_CACHE/synthetic" \
+    --workers "$(nproc)" --quiet || exit 1
+stamp "street $PRESET $SEED generated"
+if [ -n "${BUILD:-}" ]; then
+    wait "$BUILD" || { stamp "gsplat build failed"; tail -30 "$OUT/gsplat_build.log"; exit 1; }
+    stamp "$(tail -1 "$OUT/gsplat_build.log")"
+fi
+
+RUN=/tmp/idsplat_runs
+TRAIN_T0=$(date +%s)
+timeout -s INT "$SECS" $PY -c 'import sys; from nerfstudio.scripts.train import entrypoint; sys.argv[0] = "ns-train"; entrypoint()' \
+    idsplat --vis tensorboard --output-dir "$RUN" --experiment-name gpu --timestamp run --steps-per-save "${SAVE_EVERY:-500}" \
+    --pipeline.datamanager.instance-mode "$MODE" "$@" \
+    idsplat-builtin --preset "$PRESET" --seed "$SEED" >"$OUT/train.log" 2>&1
+RC=$?
+TRAIN_S=$(( $(date +%s) - TRAIN_T0 ))
+stamp "ns-train ended with $RC after $TRAIN_S s"
+CONFIG="$RUN/gpu/idsplat/run/config.yml"
+LAST=$(ls "$RUN/gpu/idsplat/run/nerfstudio_models" 2>/dev/null | sort | tail -1)
+stamp "last checkpoint: ${LAST:-none}"
+[ -n "$LAST" ] || { tail -40 "$OUT/train.log"; exit 1; }
+
+$PY -c 'import sys; from nerfstudio.scripts.eval import entrypoint; sys.argv[0] = "ns-eval"; entrypoint()' \
+    --load-config "$CONFIG" --output-path "$OUT/eval.json" >"$OUT/eval.log" 2>&1
+stamp "ns-eval ended with $?"
+[ -n "${SMI:-}" ] && kill "$SMI"
+$PY - "$OUT" "$LAST" "$TRAIN_S" "$PRESET" "$SEED" "$MODE" <<'EOF'
+import json, sys, torch
+out, last, train_s, preset, seed, mode = sys.argv[1:]
+summary = {"checkpoint": last, "train_wall_s": int(train_s), "street": f"{preset} {seed}", "instance_mode": mode,
+           "device": torch.cuda.get_device_name(0) if torch.cuda.is_available() else "cpu",
+           "torch": torch.__version__}
+try:
+    mem = [int(x) for x in open(f"{out}/gpu_memory.csv").read().split()]
+    summary["peak_gpu_memory_mib"] = max(mem)
+except (OSError, ValueError):
+    pass
+json.dump(summary, open(f"{out}/summary.json", "w"), indent=1)
+print(json.dumps(summary))
+EOF
+tail -25 "$OUT/eval.log"
