@@ -24,3 +24,40 @@ def test_startup_hook_file(tmp_path):
     assert path == str(tmp_path / PTH_NAME)
     assert (tmp_path / PTH_NAME).read_text().startswith("import idsplat_ns._compat.startup")
     assert [p.name for p in tmp_path.iterdir()] == [PTH_NAME]  # nothing temporary left behind
+
+
+def test_nerfstudio_external_method_placeholders_skip_the_stack_walk(capsys):
+    import pytest
+
+    pytest.importorskip("nerfstudio")
+    from nerfstudio.configs import external_methods as em
+
+    # The start-up hook patched the class as the module was loaded (no inspect.stack() per placeholder).
+    assert getattr(em.ExternalMethodDummyTrainerConfig.__post_init__, "_idsplat_fast", False)
+    configs, descriptions = em.get_external_methods()
+    assert configs and set(configs) == set(descriptions)
+    assert capsys.readouterr().out == ""  # built quietly, as nerfstudio builds them
+    # Picked by the user (built anywhere else), a placeholder still says how to install the method.
+    method = em.ExternalMethod("INSTALL-INSTRUCTIONS", configurations=[("some-method", "d")], pip_package=None)
+    with pytest.raises(SystemExit) as stop:
+        em.ExternalMethodDummyTrainerConfig(method_name="some-method", method=method)
+    assert stop.value.code == 0
+    assert "INSTALL-INSTRUCTIONS" in capsys.readouterr().out
+
+
+def test_nerfstudio_patch_leaves_an_unknown_layout_alone():
+    from types import SimpleNamespace
+
+    from idsplat_ns._compat.nerfstudio_startup import speed_up_external_methods
+
+    speed_up_external_methods(SimpleNamespace())  # no such class: nothing to do, no error
+
+    class Placeholder:
+        def __post_init__(self):
+            return "original"
+
+    module = SimpleNamespace(ExternalMethodDummyTrainerConfig=Placeholder)
+    speed_up_external_methods(module)
+    patched = Placeholder.__post_init__
+    speed_up_external_methods(module)  # twice: wrapped once
+    assert Placeholder.__post_init__ is patched

@@ -1,16 +1,19 @@
-"""An import hook that applies the guards just before torchvision or open3d is first imported.
+"""An import hook that applies the guards just before torchvision or open3d is first imported, and
+nerfstudio's start-up fix just after ``nerfstudio.configs.external_methods`` is loaded.
 
 Installed at interpreter start by ``idsplat_ns_compat.pth`` (written by ``idsplat-install-compat``,
-which ``make install`` runs). It costs nothing until one of the two packages is imported and never
+which ``make install`` runs). It costs nothing until one of those modules is imported and never
 imports torch itself before then.
 """
 
 from __future__ import annotations
 
 import sys
-from importlib.abc import MetaPathFinder
+from importlib.abc import Loader, MetaPathFinder
+from importlib.machinery import PathFinder
 
 PTH_NAME = "idsplat_ns_compat.pth"
+_NERFSTUDIO_EXTERNAL_METHODS = "nerfstudio.configs.external_methods"  # see nerfstudio_startup.py
 
 
 class _GuardFinder(MetaPathFinder):
@@ -20,6 +23,14 @@ class _GuardFinder(MetaPathFinder):
         self._done: set[str] = set()
 
     def find_spec(self, fullname, path=None, target=None):  # noqa: D401 - importlib protocol
+        if fullname == _NERFSTUDIO_EXTERNAL_METHODS and fullname not in self._done:
+            self._done.add(fullname)
+            from idsplat_ns._compat.nerfstudio_startup import speed_up_external_methods
+
+            spec = PathFinder.find_spec(fullname, path)
+            if spec is not None and spec.loader is not None:
+                spec.loader = _ThenPatch(spec.loader, speed_up_external_methods)
+            return spec
         if fullname in ("torchvision", "open3d") and fullname not in self._done:
             self._done.add(fullname)
             if fullname == "torchvision":
@@ -31,6 +42,23 @@ class _GuardFinder(MetaPathFinder):
 
                 ensure_loadable()
         return None  # let the normal finders import the package
+
+
+class _ThenPatch(Loader):
+    """A module's own loader, then ``patch(module)`` once the module has run."""
+
+    def __init__(self, loader: Loader, patch) -> None:
+        self._loader, self._patch = loader, patch
+
+    def create_module(self, spec):
+        return self._loader.create_module(spec)
+
+    def exec_module(self, module) -> None:
+        self._loader.exec_module(module)
+        self._patch(module)
+
+    def __getattr__(self, name):  # get_source, get_filename...: the real loader's
+        return getattr(self._loader, name)
 
 
 def install() -> None:
