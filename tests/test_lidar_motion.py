@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from idsplat_ns.data.lidar import LidarSweep
+from idsplat_ns.data.tracks import class_from_size_speed
 from idsplat_ns.instances.lidar_motion import (
     LidarMotionConfig,
     _SweepRays,
@@ -105,6 +106,17 @@ def test_a_tall_vehicle_seen_end_on_is_a_bus_and_a_car_face_is_a_car():
     assert bus.height() == pytest.approx(2.8, abs=0.15)
     assert (bus.label(), car.label()) == ("bus", "car")
     assert bus.label(long_vehicle_height=3.0) == "car"  # the threshold decides
+
+
+def test_a_tall_person_sized_footprint_is_the_end_of_a_bus():
+    # A bus's front seen from 60 m: the 2.5 m face and 0.5 m of its rounded corners, 2.8 m tall. Its
+    # footprint alone is a cyclist's (length <= 2.7 m, width 0.25-0.9 m); no cyclist is that tall.
+    bus_end = _box_track(1, (0.5, 2.5, 2.8), (60.0, 0.0, 1.7), (-9.0, 0.0, 0.0))
+    cyclist = _box_track(2, (1.8, 0.6, 1.5), (15.0, 3.0, 0.9), (5.0, 0.0, 0.0))
+    walker = _box_track(3, (0.6, 0.6, 1.5), (10.0, 6.0, 0.9), (0.0, 1.2, 0.0))
+    assert class_from_size_speed(*bus_end.footprint(), bus_end.mean_speed()) == "cyclist"  # what the size says
+    assert (bus_end.label(), cyclist.label(), walker.label()) == ("bus", "cyclist", "pedestrian")
+    assert bus_end.label(long_vehicle_height=3.0) == "cyclist"  # the same threshold as end-on vehicles
 
 
 def test_objects_are_kept_out_to_the_lifting_range():

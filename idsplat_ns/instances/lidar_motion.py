@@ -179,9 +179,13 @@ class MotionTrack:
     def label(self, long_vehicle_height: float = LidarMotionConfig.long_vehicle_height) -> str:
         """A class guess from the footprint, the height and the speed (the source has no detector
         label): ``pedestrian``, ``cyclist``, ``car``, (longer than 6.5 m) ``truck`` or (shorter
-        but taller than ``long_vehicle_height``: a long vehicle seen end-on) ``bus``."""
+        but taller than ``long_vehicle_height``: a long vehicle seen end-on) ``bus``. People are
+        never that tall: a person-sized footprint that is, is the end of a bus seen from afar (its
+        front or back face, a bus length from the middle that the amodal centre gives a vehicle)."""
         length, width = self.footprint()
         cls = class_from_size_speed(length, width, self.mean_speed())
+        if cls in ("pedestrian", "cyclist") and self.height() > long_vehicle_height:
+            return "bus"
         if cls != "vehicle":
             return cls if cls != "other" else "object"
         if length > 6.5:
@@ -439,8 +443,8 @@ class LidarMotionMaskSource(MaskSource):
 
     def cache_key(self) -> dict:
         # labels: the version of the class-guess rule (cached instances.json files carry its
-        # labels; 3: tall vehicles seen end-on are buses).
-        return {"kind": self.name, "labels": 3, **asdict(self.config)}
+        # labels; 3: tall vehicles seen end-on are buses; 4: so are tall person-sized footprints).
+        return {"kind": self.name, "labels": 4, **asdict(self.config)}
 
     def generate(self, scene: Scene, out_dir: Path, progress: bool = True) -> InstanceMaskSet:
         out_dir = Path(out_dir)
