@@ -72,19 +72,20 @@ def test_lidar_motion_labels_from_footprint_and_speed() -> None:
     assert _motion_track((12.0, 2.5, 3.5), 8.0).label() == "truck"
 
 
-# The labels the rule of cache key ``labels`` 3 gives: (box size, speed) -> label.
-LABELS_OF_KEY_3 = [((0.6, 0.6, 1.7), 1.4, "pedestrian"), ((0.6, 0.6, 1.7), 5.0, "cyclist"),
+# The labels the rule of cache key ``labels`` 4 gives: (box size, speed) -> label.
+LABELS_OF_KEY_4 = [((0.6, 0.6, 1.7), 1.4, "pedestrian"), ((0.6, 0.6, 1.7), 5.0, "cyclist"),
                    ((1.8, 0.5, 1.6), 5.0, "cyclist"), ((1.8, 1.3, 1.5), 8.0, "car"),
                    ((4.5, 1.8, 1.5), 10.0, "car"), ((12.0, 2.5, 3.5), 8.0, "truck"),
-                   ((1.5, 2.5, 2.8), 7.0, "bus")]  # a bus seen from behind: car-sized on the ground, tall
+                   ((1.5, 2.5, 2.8), 7.0, "bus"),  # a bus seen from behind: car-sized on the ground, tall
+                   ((0.5, 2.5, 2.8), 9.0, "bus")]  # its front from afar: a cyclist's footprint, but tall
 
 
 def test_lidar_motion_cache_key_names_the_label_rule() -> None:
     # The cached instances.json carries the labels: a rule that labels these cases otherwise must
     # come with a new key (then record its labels here under that key).
-    assert LidarMotionMaskSource(LidarMotionConfig()).cache_key()["labels"] == 3
-    assert [_motion_track(size, speed).label() for size, speed, _ in LABELS_OF_KEY_3] == [
-        label for _, _, label in LABELS_OF_KEY_3], "the lidar-motion label rule changed: bump cache_key()['labels']"
+    assert LidarMotionMaskSource(LidarMotionConfig()).cache_key()["labels"] == 4
+    assert [_motion_track(size, speed).label() for size, speed, _ in LABELS_OF_KEY_4] == [
+        label for _, _, label in LABELS_OF_KEY_4], "the lidar-motion label rule changed: bump cache_key()['labels']"
 
 
 def _instance(label: str) -> InstanceTrack:
