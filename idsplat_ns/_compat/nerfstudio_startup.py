@@ -13,6 +13,7 @@ from __future__ import annotations
 import sys
 from types import ModuleType
 
+
 def speed_up_external_methods(module: ModuleType) -> None:
     """Replace the placeholder's ``__post_init__`` with one that skips the stack walk where
     nerfstudio's own ``get_external_methods`` builds it (the original returns there too)."""

@@ -184,13 +184,14 @@ class MotionTrack:
         front or back face, a bus length from the middle that the amodal centre gives a vehicle)."""
         length, width = self.footprint()
         cls = class_from_size_speed(length, width, self.mean_speed())
-        if cls in ("pedestrian", "cyclist") and self.height() > long_vehicle_height:
-            return "bus"
-        if cls != "vehicle":
-            return cls if cls != "other" else "object"
+        if cls == "other":
+            return "object"
+        tall = self.height() > long_vehicle_height
+        if cls != "vehicle" and not tall:  # a tall person-sized footprint goes on as a vehicle's end
+            return cls
         if length > 6.5:
             return "truck"
-        return "bus" if self.height() > long_vehicle_height else "car"
+        return "bus" if tall else "car"
 
 
 def ground_heights(sweeps: list[LidarSweep], cell: float, rank: int) -> tuple[np.ndarray, np.ndarray]:
