@@ -30,7 +30,8 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
 
-# name: (steps, {dotted model-config field: value}). Knobs move one at a time around 1000 steps.
+# name: (steps, {dotted model-config field: value}). Knobs move one at a time around 600 and 1000 steps.
+HALF_INITIAL = {"pipeline.model.num_random_points": 10_000, "pipeline.model.max_lidar_points": 30_000}
 POINTS: dict[str, tuple[int, dict]] = {
     "steps-300": (300, {}),
     "steps-600": (600, {}),
@@ -38,8 +39,8 @@ POINTS: dict[str, tuple[int, dict]] = {
     "steps-1500 (idsplat-fast)": (1500, {}),
     "steps-3000": (3000, {}),
     "steps-1000, lidar every step": (1000, {"pipeline.model.lidar.every_n_steps": 1}),
-    "steps-1000, half initial Gaussians": (1000, {"pipeline.model.num_random_points": 10_000,
-                                                  "pipeline.model.max_lidar_points": 30_000}),
+    "steps-1000, half initial Gaussians": (1000, HALF_INITIAL),
+    "steps-600, half initial Gaussians": (600, HALF_INITIAL),
     "steps-1000, Gaussian cap x1.5": (1000, {"pipeline.model.cap_factor": 1.5}),
 }
 DEFAULT_POINTS = ["steps-300", "steps-600", "steps-1000", "steps-1500 (idsplat-fast)",
