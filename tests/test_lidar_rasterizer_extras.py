@@ -38,7 +38,8 @@ def test_culling_keeps_the_output_and_gradients_of_a_sector_of_rays():
     b = rasterize_lidar(*params, pose, az, el, cull=False, **kw)
     seen = seen_by_rays(params[0].detach()[None], params[2].detach(), pose[None], az, el,
                         torch.zeros(r, dtype=torch.int64), math.radians(5.0))  # fmt: skip
-    assert bool(seen[0]) and bool(seen[1]) and 0.1 < seen.float().mean() < 0.6  # most are culled, not these
+    assert seen.shape == (1, params[0].shape[0])
+    assert bool(seen[0, 0]) and bool(seen[0, 1]) and 0.1 < seen.float().mean() < 0.6  # most are culled, not these
     assert (b.alpha > 0.3).float().mean() > 0.2 and (b.alpha[-40:] > 0.01).any()
     for name in ("features", "alpha", "range", "median_range"):
         torch.testing.assert_close(getattr(a, name), getattr(b, name), atol=1e-9, rtol=1e-9)
@@ -96,3 +97,49 @@ def test_line_of_sight_output_equals_dense_reference_forward_and_gradients():
     g2 = torch.autograd.grad((ref * weights).sum() + plain.alpha.sum(), params[:4])
     for x, y in zip(g1, g2):
         torch.testing.assert_close(x, y, atol=2e-4, rtol=1e-3)
+
+
+def test_sub_tiles_of_any_size_give_the_same_render_and_gradients(monkeypatch):
+    # Rays bunched unevenly (a dense patch and a sparse spread): tiles hold from 1 to many rays.
+    import idsplat_ns.render.lidar as lidar
+
+    params, g = _scene(300, 5)
+    az = torch.cat([torch.rand(150, generator=g) * 0.02 + 0.5, torch.rand(150, generator=g) * 6.2]).double()
+    el = (torch.rand(300, generator=g) * 0.3 - 0.15).double()
+    cutoff = torch.rand(300, generator=g).double() * 15
+    kw = dict(azimuth_resolution=math.radians(0.5), elevation_resolution=math.radians(0.5), ray_cutoff=cutoff)
+    chosen = []
+    real = lidar.sub_tile_slots
+    monkeypatch.setattr(lidar, "sub_tile_slots", lambda per_tile, pairs: chosen.append(real(per_tile, pairs)) or chosen[-1])
+    auto = rasterize_lidar(*params, torch.eye(4, dtype=torch.float64), az, el, **kw)
+    fullest = None
+    for size in (1, 3, "fullest"):
+        if size == "fullest":
+            monkeypatch.setattr(lidar, "sub_tile_slots", lambda per_tile, pairs: int(per_tile.max()))
+        else:
+            monkeypatch.setattr(lidar, "sub_tile_slots", lambda per_tile, pairs, s=size: s)
+        out = rasterize_lidar(*params, torch.eye(4, dtype=torch.float64), az, el, **kw)
+        for name in ("features", "alpha", "range", "median_range", "alpha_before_cutoff"):
+            torch.testing.assert_close(getattr(out, name), getattr(auto, name), atol=1e-9, rtol=1e-9)
+        ga = torch.autograd.grad(auto.features.square().sum() + auto.range_unnormalised.sum(), params, retain_graph=True)
+        gb = torch.autograd.grad(out.features.square().sum() + out.range_unnormalised.sum(), params)
+        for x, y in zip(ga, gb):
+            torch.testing.assert_close(x, y, atol=1e-9, rtol=1e-9)
+        fullest = out
+    assert (fullest.alpha > 0.1).float().mean() > 0.2
+    assert 1 < chosen[0] < 150  # the dense patch is dealt into several sub-tiles
+
+
+def test_sub_tile_slots_and_split_tiles_by_hand():
+    from idsplat_ns.render.lidar import split_tiles, sub_tile_slots
+
+    per_tile = torch.tensor([5, 0, 1, 2])
+    offsets = torch.tensor([0, 2, 3, 3, 6])  # runs of 2, 1, 0 and 3 intersections
+    first, sub_offsets, src = split_tiles(per_tile, offsets, 2)
+    assert first.tolist() == [0, 3, 3, 4]  # tile 0 has 3 sub-tiles, tile 1 none, tiles 2 and 3 one each
+    assert sub_offsets.tolist() == [0, 2, 4, 6, 6, 9]
+    assert src.tolist() == [0, 1, 0, 1, 0, 1, 3, 4, 5]
+    # One tile of 40 rays among tiles of 1 (same list lengths): sub-tiles of a few rays, not 40.
+    assert 1 < sub_tile_slots(torch.tensor([40] + [1] * 30), torch.full((31,), 10)) < 10
+    assert sub_tile_slots(torch.tensor([4, 4, 4]), torch.tensor([10, 10, 10])) == 4
+    assert sub_tile_slots(torch.zeros(3, dtype=torch.int64), torch.zeros(3, dtype=torch.int64)) == 1

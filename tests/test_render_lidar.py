@@ -5,6 +5,7 @@ import math
 import pytest
 import torch
 
+from idsplat_ns.errors import IDSplatError
 from idsplat_ns.render import rasterize_lidar
 from idsplat_ns.render.lidar import project_spherical
 from idsplat_ns.render.projection import covariance_3d
@@ -137,3 +138,22 @@ def test_time_bins_use_their_own_gaussian_positions():
     out = rasterize_lidar(means, quats, torch.full((1, 3), 0.1), torch.tensor([0.8]), torch.ones(1, 1),
                           torch.eye(4).expand(2, 4, 4), az, torch.zeros(4), ray_bins=bins)  # fmt: skip
     torch.testing.assert_close(out.alpha[:, 0], torch.tensor([0.8, 0.0, 0.0, 0.8]))
+
+
+def test_time_bins_with_their_own_gaussians():
+    # Bin 0 has one Gaussian at azimuth 0, bin 1 two (azimuth 0 with another opacity, and 90):
+    # per-bin scales, opacities and features, the short bin padded with opacity 0.
+    means = torch.stack([torch.stack([10.0 * _dir(0, 0), torch.zeros(3)]),
+                         torch.stack([10.0 * _dir(0, 0), 10.0 * _dir(90, 0)])])  # fmt: skip
+    quats = torch.tensor([1.0, 0, 0, 0]).expand(2, 2, 4)
+    opacities = torch.tensor([[0.8, 0.0], [0.5, 0.7]])
+    features = torch.tensor([[[1.0], [0.0]], [[2.0], [3.0]]])
+    az = torch.deg2rad(torch.tensor([0.0, 90.0, 0.0, 90.0]))
+    bins = torch.tensor([0, 0, 1, 1])
+    out = rasterize_lidar(means, quats, torch.full((2, 2, 3), 0.1), opacities, features, torch.eye(4).expand(2, 4, 4),
+                          az, torch.zeros(4), ray_bins=bins)  # fmt: skip
+    torch.testing.assert_close(out.alpha[:, 0], torch.tensor([0.8, 0.0, 0.5, 0.7]))
+    torch.testing.assert_close(out.features[:, 0], torch.tensor([0.8, 0.0, 1.0, 2.1]))
+    with pytest.raises(IDSplatError, match="per bin"):  # opacities per bin, features shared: refused
+        rasterize_lidar(means, quats, torch.full((2, 2, 3), 0.1), opacities, features[0], torch.eye(4).expand(2, 4, 4),
+                        az, torch.zeros(4), ray_bins=bins)  # fmt: skip

@@ -5,10 +5,11 @@ batch are split into K equal-width bins of their timestamps; for each bin the Ga
 at the bin's centre time (``posed_at(t)``, e.g. :meth:`SceneModel.posed_gaussians`) and the sensor
 is placed at the mean origin of the bin's rays with the sweep's rotation. Rays of different lidars
 (Waymo's five sit up to ~2 m apart) are binned apart, so each lidar is rendered from its own
-position. Each bin is rendered by
-its own :func:`~idsplat_ns.render.rasterize_lidar` call (the set of present Gaussians may differ
-between bins: an instance may appear or vanish mid-sweep) and the results are scattered back into
-ray order.
+position. All (lidar, bin) groups are rendered by one :func:`~idsplat_ns.render.rasterize_lidar`
+call with per-bin Gaussians (the set of present Gaussians may differ between bins: an instance may
+appear or vanish mid-sweep), each group's Gaussians moved by the offset between its lidar position
+and the first group's, so that one sensor pose serves every group (one rasterization instead of
+one per group: a fixed cost per call dominates on a GPU).
 
 Approximations (documented sizes):
 
@@ -160,46 +161,59 @@ def render_lidar_rays(
         groups = sensor_rank * centres.numel() + bins.to(device)
     else:
         groups = bins.to(device)
+    group_ids, ray_group = torch.unique(groups, return_inverse=True)  # ray_group: [R] in 0..G-1
+    num_groups = group_ids.numel()
     rot = sensor_to_world[:3, :3].to(device=device, dtype=torch.float32)
-    chunks: list[tuple[Tensor, LidarRender]] = []
+    # Each group's position: the mean origin of its rays.
+    counts = torch.bincount(ray_group, minlength=num_groups).to(rays.origins.dtype)
+    origins = torch.zeros(num_groups, 3, device=device, dtype=rays.origins.dtype).index_add_(0, ray_group, rays.origins)
+    origins = origins / counts[:, None]
     posed_cache: dict[int, dict] = {}
-    for group in torch.unique(groups).tolist():
-        idx = torch.nonzero(groups == group).squeeze(1)
+    per_group = []
+    for g, group in enumerate(group_ids.tolist()):
         b = int(group % centres.numel())
         if b not in posed_cache:  # the Gaussians are posed once per time bin, shared by the lidars
             posed_cache[b] = posed_at(float(centres[b]))
-        g = posed_cache[b]
-        origin = rays.origins[idx].mean(0)  # this lidar's position in this bin
-        lidar_from_world = torch.eye(4, device=device, dtype=torch.float32)
-        lidar_from_world[:3, :3] = rot.T
-        lidar_from_world[:3, 3] = -rot.T @ origin
-        dirs = rays.directions[idx]
-        # Range from each ray's own origin = range from the bin origin minus this along-ray offset.
-        along = ((rays.origins[idx] - origin) * dirs).sum(1, keepdim=True)
-        az, el = ray_angles(dirs, rot)
-        if g["means"].shape[0] == 0:  # nothing present in this bin: no hit
-            zeros = torch.zeros(idx.numel(), 1, device=device)
-            out = LidarRender(features=g["features"].new_zeros(idx.numel(), g["features"].shape[1]), alpha=zeros,
-                              range=zeros, median_range=zeros,
-                              alpha_before_cutoff=None if cutoff_ranges is None else zeros)  # fmt: skip
-        else:
-            cut = None if cutoff_ranges is None else cutoff_ranges[idx] + along[:, 0]
-            out = rasterize_lidar(g["means"], g["quats"], g["scales"], g["opacities"], g["features"],
-                                  lidar_from_world, az, el, ray_cutoff=cut, **rasterizer_kwargs)  # fmt: skip
-        hit = out.alpha > 0
-        out = replace(
-            out,
-            range=torch.where(hit, out.range - along, out.range),
-            median_range=torch.where(hit, out.median_range - along, out.median_range),
-        )
-        chunks.append((idx, out))
-    fields = ["features", "alpha", "range", "median_range"] + ([] if cutoff_ranges is None else ["alpha_before_cutoff"])
-    merged = {}
-    for name in fields:
-        first = getattr(chunks[0][1], name)
-        value = first.new_zeros(r, first.shape[1])
-        for idx, out in chunks:
-            # index_copy keeps the graph (out-of-place) so gradients reach every bin's Gaussians
-            value = value.index_copy(0, idx, getattr(out, name))
-        merged[name] = value
-    return LidarRender(**merged)
+        posed = posed_cache[b]
+        # Seen from the first group's position, the group's Gaussians sit moved by this offset.
+        per_group.append(dict(posed, means=posed["means"] + (origins[0] - origins[g]).to(posed["means"].dtype)))
+    lidar_from_world = torch.eye(4, device=device, dtype=torch.float32)
+    lidar_from_world[:3, :3] = rot.T
+    lidar_from_world[:3, 3] = -rot.T @ origins[0].float()
+    dirs = rays.directions
+    # Range from each ray's own origin = range from its group's position minus this along-ray offset.
+    along = ((rays.origins - origins[ray_group]) * dirs).sum(1, keepdim=True)
+    az, el = ray_angles(dirs, rot)
+    cut = None if cutoff_ranges is None else cutoff_ranges + along[:, 0]
+    stacked = _stack_groups(per_group)
+    out = rasterize_lidar(stacked["means"], stacked["quats"], stacked["scales"], stacked["opacities"],
+                          stacked["features"], lidar_from_world.expand(num_groups, 4, 4), az, el,
+                          ray_bins=ray_group, ray_cutoff=cut, **rasterizer_kwargs)  # fmt: skip
+    hit = out.alpha > 0
+    return replace(
+        out,
+        range=torch.where(hit, out.range - along, out.range),
+        median_range=torch.where(hit, out.median_range - along, out.median_range),
+    )
+
+
+def _stack_groups(groups: list[dict]) -> dict[str, Tensor]:
+    """The groups' posed Gaussians (``means`` [N_g, 3], ``quats``, ``scales``, ``opacities``,
+    ``features``) stacked per bin, [G, max N_g, ...], the short ones padded with Gaussians of
+    opacity 0 (which the rasterizer drops)."""
+    size = max(g["means"].shape[0] for g in groups)
+    pad_values = {"means": 0.0, "quats": 0.0, "scales": 1.0, "opacities": 0.0, "features": 0.0}
+    stacked = {}
+    for name, value in pad_values.items():
+        rows = []
+        for g in groups:
+            x = g[name]
+            missing = size - x.shape[0]
+            if missing:
+                pad = x.new_full((missing,) + x.shape[1:], value)
+                if name == "quats":
+                    pad[:, 0] = 1.0  # a valid rotation, so the padding's covariance is finite
+                x = torch.cat([x, pad])
+            rows.append(x)
+        stacked[name] = torch.stack(rows)
+    return stacked

@@ -67,7 +67,7 @@ def intersect_tiles(
     covars2d: Tensor,  # [C, N, 3]
     depths: Tensor,  # [C, N]
     radii: Tensor,  # [C, N] int, 0 = culled
-    opacities: Tensor,  # [N]
+    opacities: Tensor,  # [N], or [C, N] one per camera (lidar time bins with their own Gaussians)
     width: int,
     height: int,
     tile_size: int,
@@ -90,7 +90,7 @@ def intersect_tiles(
     # their rank as an integer key together with the camera index.
     flat_depth = depths.reshape(-1).float()
     cam_idx = torch.arange(cams, device=device).repeat_interleave(n)
-    ext = alpha_extent(covars2d.reshape(-1, 3), opacities.repeat(cams))
+    ext = alpha_extent(covars2d.reshape(-1, 3), opacities.reshape(-1) if opacities.dim() == 2 else opacities.repeat(cams))
     mx, my = means2d.reshape(-1, 2).unbind(-1)
     # Cells x whose sample (centre x + 0.5, or anywhere in [x, x + 1)) can lie in the box.
     half = 0.0 if samples_anywhere else 0.5

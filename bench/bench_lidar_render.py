@@ -1,0 +1,132 @@
+"""Time one training lidar batch (render, losses, backward) of a method preset on a built-in
+street, side by side with another revision of the engine in the same run.
+
+The model is the one ``ns-train METHOD idsplat-builtin`` builds (oracle instance tracks, the
+Gaussians as initialised); the batches are the lidar supervisor's own draws, the same sequence for
+both revisions (same seed). Each revision runs in a child process of its own with ``PYTHONPATH``
+on its source tree (a git worktree for ``--against``), the two alternating ``--rounds`` times, so
+that load on the machine falls on both alike. Quote the medians and their ratio.
+
+    .venv/bin/python bench/bench_lidar_render.py --against HEAD~1 --threads 1
+    .venv/bin/python bench/bench_lidar_render.py --method idsplat --seed 100 --against v0 --out T.md
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _sync() -> None:
+    import torch
+
+    if torch.cuda.is_available():
+        torch.cuda.synchronize()
+
+
+def child(args: argparse.Namespace) -> None:
+    """Build the model, then time ``--batches`` lidar batches after ``--warmup`` untimed ones."""
+    import torch
+
+    sys.path.insert(0, str(REPO / "bench"))
+    from profile_train_step import build_trainer
+
+    torch.set_num_threads(args.threads)
+    trainer = build_trainer(args.method, args.preset, args.seed, "oracle", Path(args.work))
+    model = trainer.pipeline.model
+    if model.lidar is None:
+        raise SystemExit(f"bench_lidar_render.py: street {args.preset} {args.seed} has no lidar")
+    forward, both = [], []
+    for i in range(args.warmup + args.batches):
+        rays, pose = model.lidar.sample(model.device)
+        _sync()
+        t0 = time.perf_counter()
+        out = model.lidar.render_batch(model.scene_model, rays, pose)
+        loss = sum(model.lidar.losses(out).values())
+        _sync()
+        t1 = time.perf_counter()
+        loss.backward()
+        _sync()
+        t2 = time.perf_counter()
+        model.zero_grad(set_to_none=True)
+        if i >= args.warmup:
+            forward.append(t1 - t0)
+            both.append(t2 - t0)
+    print("RESULT " + json.dumps({"forward": forward, "both": both, "rays": rays.num_rays,
+                                  "gaussians": int(model.gaussians.num)}))  # fmt: skip
+
+
+def worktree(rev: str) -> Path:
+    """A git worktree of ``rev`` under /tmp (made once, reused while it is at that commit)."""
+    sha = subprocess.run(["git", "rev-parse", rev], cwd=REPO, check=True, capture_output=True, text=True).stdout.strip()
+    path = Path("/tmp") / f"idsplat-bench-{sha[:10]}"
+    if not path.is_dir():
+        subprocess.run(["git", "worktree", "add", "--detach", str(path), sha], cwd=REPO, check=True, capture_output=True)
+    return path
+
+
+def run_child(tree: Path, args: argparse.Namespace, work: Path) -> dict:
+    cmd = [sys.executable, __file__, "--child", "--method", args.method, "--preset", args.preset, "--seed",
+           str(args.seed), "--threads", str(args.threads), "--warmup", str(args.warmup), "--batches",
+           str(args.batches), "--work", str(work)]  # fmt: skip
+    env = dict(os.environ, PYTHONPATH=str(tree), OMP_NUM_THREADS=str(args.threads))
+    done = subprocess.run(cmd, env=env, capture_output=True, text=True)
+    line = [x for x in done.stdout.splitlines() if x.startswith("RESULT ")]
+    if done.returncode or not line:
+        raise SystemExit(f"bench_lidar_render.py: the run on {tree} failed:\n{done.stderr[-3000:]}")
+    return json.loads(line[-1][7:])
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--method", default="idsplat-fast", choices=["idsplat", "idsplat-fast"])
+    ap.add_argument("--preset", default="small", help="built-in street preset")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--threads", type=int, default=2, help="torch CPU threads")
+    ap.add_argument("--warmup", type=int, default=2, help="untimed batches first")
+    ap.add_argument("--batches", type=int, default=8, help="timed batches per round")
+    ap.add_argument("--rounds", type=int, default=2, help="alternations of the revisions")
+    ap.add_argument("--against", default=None, help="git revision to time beside the working tree")
+    ap.add_argument("--work", type=Path, default=Path("/tmp/idsplat-bench-lidar"))
+    ap.add_argument("--out", type=Path, default=None, help="also write the markdown table here")
+    args = ap.parse_args()
+    if args.child:
+        child(args)
+        return
+    trees = {"working tree": REPO}
+    if args.against:
+        trees[f"{args.against}"] = worktree(args.against)
+    times: dict[str, dict[str, list[float]]] = {name: {"forward": [], "both": []} for name in trees}
+    info = {}
+    for r in range(args.rounds):
+        for name, tree in trees.items():
+            res = run_child(tree, args, args.work / name.replace(" ", "_").replace("/", "_") / str(r))
+            times[name]["forward"] += res["forward"]
+            times[name]["both"] += res["both"]
+            info = res
+            print(f"round {r + 1}: {name}: forward {statistics.median(res['forward']):.3f} s, "
+                  f"forward+backward {statistics.median(res['both']):.3f} s", flush=True)  # fmt: skip
+    base = statistics.median(times["working tree"]["both"])
+    lines = [f"{args.method}, street {args.preset} {args.seed}, {info['gaussians']:,} Gaussians, {info['rays']:,} rays "
+             f"a batch, {args.threads} thread(s), medians of {args.rounds} x {args.batches} batches", "",
+             "| revision | forward s | forward+backward s | time against the working tree |", "|---|---|---|---|"]  # fmt: skip
+    for name, t in times.items():
+        both = statistics.median(t["both"])
+        lines.append(f"| {name} | {statistics.median(t['forward']):.3f} | {both:.3f} | {both / base:.2f}x |")
+    text = "\n".join(lines)
+    print("\n" + text)
+    if args.out:
+        args.out.write_text(text + "\n")
+
+
+if __name__ == "__main__":
+    main()
