@@ -9,6 +9,9 @@ that load on the machine falls on both alike. Quote the medians and their ratio.
 
     .venv/bin/python bench/bench_lidar_render.py --against HEAD~1 --threads 1
     .venv/bin/python bench/bench_lidar_render.py --method idsplat --seed 100 --against v0 --out T.md
+
+Without git history (a GPU machine), pass the other revision as a source tree made here:
+``git archive REV idsplat_ns method_configs | tar -x -C .prev`` and ``--against-tree .prev``.
 """
 
 from __future__ import annotations
@@ -77,7 +80,9 @@ def run_child(tree: Path, args: argparse.Namespace, work: Path) -> dict:
     cmd = [sys.executable, __file__, "--child", "--method", args.method, "--preset", args.preset, "--seed",
            str(args.seed), "--threads", str(args.threads), "--warmup", str(args.warmup), "--batches",
            str(args.batches), "--work", str(work)]  # fmt: skip
-    env = dict(os.environ, PYTHONPATH=str(tree), OMP_NUM_THREADS=str(args.threads))
+    # The tree first; what the path held before (a --target install of the dependencies) after it.
+    path = os.pathsep.join([str(tree)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p])
+    env = dict(os.environ, PYTHONPATH=path, OMP_NUM_THREADS=str(args.threads))
     done = subprocess.run(cmd, env=env, capture_output=True, text=True)
     line = [x for x in done.stdout.splitlines() if x.startswith("RESULT ")]
     if done.returncode or not line:
@@ -96,6 +101,9 @@ def main() -> None:
     ap.add_argument("--batches", type=int, default=8, help="timed batches per round")
     ap.add_argument("--rounds", type=int, default=2, help="alternations of the revisions")
     ap.add_argument("--against", default=None, help="git revision to time beside the working tree")
+    ap.add_argument("--against-tree", type=Path, default=None,
+                    help="a source tree (idsplat_ns/ and method_configs/, e.g. from `git archive`) to time beside "
+                         "the working tree, where there is no git history (a GPU machine)")
     ap.add_argument("--work", type=Path, default=Path("/tmp/idsplat-bench-lidar"))
     ap.add_argument("--out", type=Path, default=None, help="also write the markdown table here")
     args = ap.parse_args()
@@ -105,6 +113,10 @@ def main() -> None:
     trees = {"working tree": REPO}
     if args.against:
         trees[f"{args.against}"] = worktree(args.against)
+    if args.against_tree:
+        if not (args.against_tree / "idsplat_ns").is_dir():
+            raise SystemExit(f"bench_lidar_render.py: {args.against_tree} has no idsplat_ns/; pass a source tree")
+        trees[str(args.against_tree)] = args.against_tree.resolve()
     times: dict[str, dict[str, list[float]]] = {name: {"forward": [], "both": []} for name in trees}
     info = {}
     for r in range(args.rounds):

@@ -11,6 +11,8 @@
 # gsplat's CUDA code is compiled while the street is generated. The run saves a checkpoint every
 # 500 steps (SAVE_EVERY); when TRAIN_SECONDS have passed it is stopped (SIGINT) and the last checkpoint is
 # evaluated. OUT receives train.log, eval.json, gpu_memory.csv and summary.json.
+# LIDAR_AGAINST=DIR (a source tree of another revision, see bench/bench_lidar_render.py) first times
+# a training lidar batch of both beside each other (lidar_render.md).
 set -u
 OUT=${1:?usage: bench/gpu_ns_train.sh OUT [TRAIN_SECONDS] [PRESET] [SEED] [MODE] [ns-train args...]}
 SECS=${2:-300}
@@ -50,6 +52,12 @@ stamp "street $PRESET $SEED generated"
 if [ -n "${BUILD:-}" ]; then
     wait "$BUILD" || { stamp "gsplat build failed"; tail -30 "$OUT/gsplat_build.log"; exit 1; }
     stamp "$(tail -1 "$OUT/gsplat_build.log")"
+fi
+
+if [ -n "${LIDAR_AGAINST:-}" ]; then  # a source tree of another revision: time its lidar batch beside this one
+    $PY bench/bench_lidar_render.py --method idsplat --preset "$PRESET" --seed "$SEED" --threads "$(nproc)" \
+        --against-tree "$LIDAR_AGAINST" --out "$OUT/lidar_render.md" >"$OUT/lidar_render.log" 2>&1
+    stamp "lidar batch bench ended with $?"
 fi
 
 RUN=/tmp/idsplat_runs
