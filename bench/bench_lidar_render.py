@@ -93,7 +93,7 @@ def run_child(tree: Path, args: argparse.Namespace, work: Path) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
-    ap.add_argument("--method", default="idsplat-fast", choices=["idsplat", "idsplat-fast"])
+    ap.add_argument("--method", default="idsplat-fast", choices=["idsplat", "idsplat-fast", "idsplat-preview"])
     ap.add_argument("--preset", default="small", help="built-in street preset")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--threads", type=int, default=2, help="torch CPU threads")

@@ -47,14 +47,12 @@ DEFAULT_POINTS = ["steps-300", "steps-600", "steps-1000", "steps-1500 (idsplat-f
                   "steps-1000, lidar every step", "steps-1000, half initial Gaussians"]
 
 
-def train_point(street: Path, out: Path, steps: int, overrides: dict) -> None:
-    """The child process: one training, as ``ns-train idsplat-fast`` with ``steps`` would run it."""
-    from nerfstudio.scripts.train import _set_random_seed
-
+def point_config(steps: int, overrides: dict):
+    """The trainer configuration of a point: ``ns-train idsplat-fast`` with ``steps`` (schedules
+    scaled with the run) and the ``overrides`` (dotted config field: value)."""
     from method_configs.idsplat import make_trainer_config
 
     cfg = make_trainer_config("idsplat-fast", steps, (max(1, steps // 5), max(2, steps * 7 // 15)), fast=True)
-    cfg.pipeline.datamanager.dataparser.data = street
     for path, value in overrides.items():
         *parents, name = path.split(".")
         target = cfg
@@ -63,6 +61,15 @@ def train_point(street: Path, out: Path, steps: int, overrides: dict) -> None:
         if not hasattr(target, name):
             raise SystemExit(f"pareto.py: no config field {path}")
         setattr(target, name, value)
+    return cfg
+
+
+def train_point(street: Path, out: Path, steps: int, overrides: dict) -> None:
+    """The child process: one training, as ``ns-train idsplat-fast`` with ``steps`` would run it."""
+    from nerfstudio.scripts.train import _set_random_seed
+
+    cfg = point_config(steps, overrides)
+    cfg.pipeline.datamanager.dataparser.data = street
     cfg.vis = "tensorboard"
     cfg.output_dir = out
     cfg.experiment_name = "point"

@@ -32,10 +32,10 @@ def build_trainer(method: str, preset: str, seed: int, mode: str, out: Path):
     """The trainer ``ns-train METHOD idsplat-builtin --preset P --seed S`` would run, set up."""
     from nerfstudio.scripts.train import _set_random_seed
 
-    from method_configs.idsplat import idsplat_fast_method, idsplat_method
+    from method_configs.idsplat import idsplat_fast_method, idsplat_method, idsplat_preview_method
     from idsplat_ns.nerfstudio.builtin_scene import builtin_street
 
-    cfg = {"idsplat": idsplat_method, "idsplat-fast": idsplat_fast_method}[method].config
+    cfg = {"idsplat": idsplat_method, "idsplat-fast": idsplat_fast_method, "idsplat-preview": idsplat_preview_method}[method].config
     cfg.pipeline.datamanager.dataparser.data = builtin_street(preset, seed)
     cfg.pipeline.datamanager.instance_mode = mode
     cfg.vis = "tensorboard"
@@ -69,7 +69,7 @@ def run_steps(trainer, first: int, count: int) -> list[float]:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--method", default="idsplat-fast", choices=["idsplat", "idsplat-fast"])
+    ap.add_argument("--method", default="idsplat-fast", choices=["idsplat", "idsplat-fast", "idsplat-preview"])
     ap.add_argument("--preset", default="small")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--mode", default="oracle", help="instance mode (oracle needs no preprocessing)")

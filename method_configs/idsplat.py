@@ -1,9 +1,11 @@
-"""The methods ``idsplat`` (the paper's settings) and ``idsplat-fast`` (a CPU-sized preset),
-registered with nerfstudio through entry points in pyproject.toml (dataparsers: dataparsers.py).
+"""The methods ``idsplat`` (the paper's settings), ``idsplat-fast`` (a CPU-sized preset) and
+``idsplat-preview`` (a quicker look), registered with nerfstudio through entry points in
+pyproject.toml (dataparsers: dataparsers.py).
 
 The speed/accuracy trade is a preset: ``idsplat-fast`` keeps the model and losses but trains
 fewer steps with a proportionally shorter resolution schedule, fewer initial Gaussians and a lidar
-batch every fourth step.
+batch every fourth step; ``idsplat-preview`` trains 1000 steps from half as many initial Gaussians.
+Both points were chosen on the measured front of docs/pareto.md (``bench/pareto.py``).
 """
 
 from __future__ import annotations
@@ -63,11 +65,23 @@ def _optimizers(max_steps: int, warmup_scale: float = 1.0) -> dict:
     }
 
 
-def make_trainer_config(method_name: str, max_steps: int, resolution_schedule: tuple, fast: bool) -> IDSplatTrainerConfig:
+# Initial Gaussians of the CPU presets: (random points, lidar points at most).
+FAST_INITIAL_POINTS = (20_000, 60_000)
+PREVIEW_INITIAL_POINTS = (10_000, 30_000)
+
+
+def make_trainer_config(
+    method_name: str,
+    max_steps: int,
+    resolution_schedule: tuple,
+    fast: bool,
+    initial_points: tuple[int, int] = FAST_INITIAL_POINTS,
+) -> IDSplatTrainerConfig:
+    """A trainer configuration: the paper's (``fast=False``) or a CPU-sized one with
+    ``initial_points`` (random points, lidar points at most) and a lidar batch every fourth step."""
     model = IDSplatModelConfig(resolution_schedule=resolution_schedule)
     if fast:
-        model.num_random_points = 20_000
-        model.max_lidar_points = 60_000
+        model.num_random_points, model.max_lidar_points = initial_points
         # A lidar batch costs more than a full-resolution camera step on the CPU (0.5 s against
         # 0.35 s, docs/lidar.md): every fourth step keeps `make demo` near 10 minutes (the paper:
         # every step, which `idsplat` keeps).
@@ -99,4 +113,9 @@ idsplat_method = MethodSpecification(
 idsplat_fast_method = MethodSpecification(
     config=make_trainer_config("idsplat-fast", 1500, (300, 700), fast=True),
     description="IDSplat, CPU-sized preset: 1500 steps, short resolution schedule, fewer initial Gaussians.",
+)
+
+idsplat_preview_method = MethodSpecification(
+    config=make_trainer_config("idsplat-preview", 1000, (200, 466), fast=True, initial_points=PREVIEW_INITIAL_POINTS),
+    description="IDSplat, quick-look preset: 1000 steps from half of idsplat-fast's initial Gaussians.",
 )

@@ -313,11 +313,11 @@ SETTING_CASES = [
 
 
 def test_default_settings_are_valid() -> None:
-    from method_configs.idsplat import idsplat_fast_method, idsplat_method
+    from method_configs.idsplat import idsplat_fast_method, idsplat_method, idsplat_preview_method
     from idsplat_ns.nerfstudio import dataparser as dp
     from idsplat_ns.nerfstudio.settings_checks import validate_settings
 
-    for method in (idsplat_method, idsplat_fast_method):
+    for method in (idsplat_method, idsplat_fast_method, idsplat_preview_method):
         validate_settings(method.config)
     for parser in (dp.AutoDataParserConfig, dp.BuiltinDataParserConfig, dp.PandaSetDataParserConfig, dp.WaymoDataParserConfig):
         cfg = _config()
