@@ -207,6 +207,28 @@ def test_time_bins_in_one_call_equal_each_bin_rendered_alone():
         torch.testing.assert_close(x, y, atol=2e-3 * float(y.abs().max()), rtol=0)
 
 
+def test_each_bin_stacks_only_the_gaussians_its_rays_may_reach(monkeypatch):
+    # A spinning sweep: the first half of the rays looks forward (azimuth near 0), the second half
+    # backward (near 180). Walls in front and behind: each bin is given only its own wall.
+    import idsplat_ns.model.lidar_render as lidar_render
+
+    n = 200
+    rng = np.random.default_rng(3)
+    times = np.linspace(0.0, 0.1, n)
+    az = np.where(np.arange(n) < n // 2, rng.uniform(-5, 5, n), rng.uniform(175, 185, n))
+    sweep = _sweep(np.zeros((n, 3)), _dirs(az, rng.uniform(-3, 3, n)), times)
+    rays = sample_rays(sweep, n)
+    front, back = _wall(20.0, step=0.2), _wall(-20.0, step=0.2)
+    gs = _gaussians(torch.cat([front, back]))
+    sizes = []
+    real = lidar_render.rasterize_lidar
+    monkeypatch.setattr(lidar_render, "rasterize_lidar", lambda means, *a, **kw: sizes.append(means.shape[:2]) or real(means, *a, **kw))
+    out = render_lidar_rays(lambda t: gs, rays, torch.tensor(sweep.sensor_to_world, dtype=torch.float32), num_time_bins=2)
+    assert (out.alpha[:, 0] > 0.8).all()  # every ray hits its wall
+    (groups, stacked), = sizes
+    assert groups == 2 and stacked <= front.shape[0]  # not 2 x both walls
+
+
 def _subset(rays: LidarRayBatch, idx: torch.Tensor) -> LidarRayBatch:
     return LidarRayBatch(rays.origins[idx], rays.directions[idx], rays.ranges[idx], rays.intensities[idx],
                          rays.times[idx], rays.returned[idx])

@@ -29,6 +29,7 @@ Approximations (documented sizes):
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Optional
@@ -40,6 +41,8 @@ from torch import Tensor
 from idsplat_ns.data.lidar import LidarSweep
 from idsplat_ns.errors import IDSplatError
 from idsplat_ns.render import LidarRender, rasterize_lidar
+from idsplat_ns.render.lidar import cull_margin, seen_by_rays
+from idsplat_ns.render.reference import ALPHA_MIN
 
 
 @dataclass
@@ -168,6 +171,17 @@ def render_lidar_rays(
     counts = torch.bincount(ray_group, minlength=num_groups).to(rays.origins.dtype)
     origins = torch.zeros(num_groups, 3, device=device, dtype=rays.origins.dtype).index_add_(0, ray_group, rays.origins)
     origins = origins / counts[:, None]
+    lidar_from_world = torch.eye(4, device=device, dtype=torch.float32)
+    lidar_from_world[:3, :3] = rot.T
+    lidar_from_world[:3, 3] = -rot.T @ origins[0].float()
+    dirs = rays.directions
+    # Range from each ray's own origin = range from its group's position minus this along-ray offset.
+    along = ((rays.origins - origins[ray_group]) * dirs).sum(1, keepdim=True)
+    az, el = ray_angles(dirs, rot)
+    margin = None
+    if rasterizer_kwargs.get("cull", True):
+        grid = {k: rasterizer_kwargs.get(k, _RASTERIZER_DEFAULTS[k]) for k in _GRID_ARGS}
+        margin = cull_margin(**grid)
     posed_cache: dict[int, dict] = {}
     per_group = []
     for g, group in enumerate(group_ids.tolist()):
@@ -176,14 +190,16 @@ def render_lidar_rays(
             posed_cache[b] = posed_at(float(centres[b]))
         posed = posed_cache[b]
         # Seen from the first group's position, the group's Gaussians sit moved by this offset.
-        per_group.append(dict(posed, means=posed["means"] + (origins[0] - origins[g]).to(posed["means"].dtype)))
-    lidar_from_world = torch.eye(4, device=device, dtype=torch.float32)
-    lidar_from_world[:3, :3] = rot.T
-    lidar_from_world[:3, 3] = -rot.T @ origins[0].float()
-    dirs = rays.directions
-    # Range from each ray's own origin = range from its group's position minus this along-ray offset.
-    along = ((rays.origins - origins[ray_group]) * dirs).sum(1, keepdim=True)
-    az, el = ray_angles(dirs, rot)
+        posed = dict(posed, means=posed["means"] + (origins[0] - origins[g]).to(posed["means"].dtype))
+        if margin is not None and posed["means"].shape[0]:
+            # Only what the group's rays may reach is stacked (a time bin is a sector of a sweep):
+            # memory in proportion to the Gaussians seen, not to groups x all Gaussians.
+            mine = ray_group == g
+            seen = seen_by_rays(posed["means"].detach()[None], posed["scales"].detach(), lidar_from_world[None],
+                                az[mine].detach(), el[mine].detach(), torch.zeros_like(ray_group[mine]), margin)[0]  # fmt: skip
+            keep = torch.nonzero(seen & (posed["opacities"].detach() > ALPHA_MIN)).squeeze(1)
+            posed = {k: posed[k].index_select(0, keep) for k in _GAUSSIAN_KEYS}
+        per_group.append(posed)
     cut = None if cutoff_ranges is None else cutoff_ranges + along[:, 0]
     stacked = _stack_groups(per_group)
     out = rasterize_lidar(stacked["means"], stacked["quats"], stacked["scales"], stacked["opacities"],
@@ -195,6 +211,11 @@ def render_lidar_rays(
         range=torch.where(hit, out.range - along, out.range),
         median_range=torch.where(hit, out.median_range - along, out.median_range),
     )
+
+
+_GAUSSIAN_KEYS = ("means", "quats", "scales", "opacities", "features")
+_GRID_ARGS = ("azimuth_resolution", "elevation_resolution", "tile_size", "eps2d")
+_RASTERIZER_DEFAULTS = {k: p.default for k, p in inspect.signature(rasterize_lidar).parameters.items()}
 
 
 def _stack_groups(groups: list[dict]) -> dict[str, Tensor]:

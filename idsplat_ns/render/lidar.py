@@ -183,6 +183,21 @@ def seen_by_rays(
     return in_azimuth & in_elevation
 
 
+def azimuth_grid(azimuth_resolution: float, tile_size: int) -> tuple[int, int, float]:
+    """Tiles around the circle, grid width in cells, and the cell's azimuth (radians): a whole
+    number of tiles of about ``azimuth_resolution`` cells."""
+    tiles_x = max(1, round(2 * math.pi / azimuth_resolution / tile_size))
+    width = tiles_x * tile_size
+    return tiles_x, width, 2 * math.pi / width
+
+
+def cull_margin(azimuth_resolution: float, elevation_resolution: float, tile_size: int = 8, eps2d: float = 0.3) -> float:
+    """Radians added to a Gaussian's extent by :func:`seen_by_rays` in :func:`rasterize_lidar`:
+    a tile and the low-pass's 3 sigma, in the coarser of the two grid directions."""
+    az_res = azimuth_grid(azimuth_resolution, tile_size)[2]
+    return (tile_size + 3.0 * math.sqrt(eps2d) + 1.0) * max(az_res, elevation_resolution)
+
+
 def kept_per_bin(keep: Tensor) -> tuple[Tensor, Tensor]:  # keep: [K, N] bool
     """The kept Gaussians of each bin in their order, padded to the fullest bin: index [K, M]
     int64 and valid [K, M] bool (False for the padding, whose index is that of a dropped one)."""
@@ -311,13 +326,10 @@ def rasterize_lidar(
         ray_bins = torch.zeros_like(ray_azimuth, dtype=torch.int64)
 
     # Angular grid: whole tiles around the circle; rows spanning the rays' elevations.
-    tiles_x = max(1, round(2 * math.pi / azimuth_resolution / tile_size))
-    width = tiles_x * tile_size
-    az_res = 2 * math.pi / width
+    tiles_x, width, az_res = azimuth_grid(azimuth_resolution, tile_size)
     keep = (opacities.detach() > ALPHA_MIN).expand(k, n)
     if cull and n > 0 and ray_azimuth.numel() > 0:
-        # Margin: a tile and the low-pass's 3 sigma, in the coarser of the two grid directions.
-        margin = (tile_size + 3.0 * math.sqrt(eps2d) + 1.0) * max(az_res, elevation_resolution)
+        margin = cull_margin(azimuth_resolution, elevation_resolution, tile_size, eps2d)
         keep = keep & seen_by_rays(means.detach(), scales.detach(), lidar_from_world.detach(), ray_azimuth.detach(),
                                    ray_elevation.detach(), ray_bins, margin)  # fmt: skip
     if not bool(keep.any()):  # no Gaussian that can reach any ray: nothing is hit
