@@ -142,6 +142,28 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def summary(rows: list[dict]) -> str:
+    """Per point, over the streets that ran it: mean CPU time, PSNR, DPSNR and lidar depth, and on
+    how many streets the point is on that street's front (PSNR and DPSNR against CPU time)."""
+    streets = sorted({r["street"] for r in rows})
+    fronts = {(s, k): {id(r) for r in pareto_front([r for r in rows if r["street"] == s], k)}
+              for s in streets for k in ("psnr", "dpsnr")}  # fmt: skip
+    lines = ["| point | streets | mean cpu_s | mean psnr | mean dpsnr | mean lidar_depth | on the PSNR front | on the DPSNR front |",
+             "|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    for point in dict.fromkeys(r["point"] for r in rows):
+        mine = [r for r in rows if r["point"] == point]
+
+        def mean(key: str, fmt: str) -> str:
+            vals = [r[key] for r in mine if r.get(key) is not None]
+            return fmt.format(sum(vals) / len(vals)) if vals else "-"
+
+        on = {k: sum(id(r) in fronts[(r["street"], k)] for r in mine) for k in ("psnr", "dpsnr")}
+        lines.append(f"| {point} | {len(mine)} | {mean('cpu_s', '{:.0f}')} | {mean('psnr', '{:.2f}')} | "
+                     f"{mean('dpsnr', '{:.2f}')} | {mean('lidar_depth', '{:.3f}')} | {on['psnr']}/{len(mine)} | "
+                     f"{on['dpsnr']}/{len(mine)} |")  # fmt: skip
+    return "\n".join(lines)
+
+
 def plot(rows: list[dict], path: Path) -> None:
     import matplotlib
 
@@ -199,6 +221,8 @@ def main() -> None:
             rows.append({"street": name, **run_point(street, args.work / name, point)})
             print(table(rows[-1:]).splitlines()[-1], flush=True)
     text = table(rows)
+    if len({r["street"] for r in rows}) > 1:
+        text += "\n\n" + summary(rows)
     print("\n" + text)
     if args.table:
         args.table.write_text(text + "\n")
