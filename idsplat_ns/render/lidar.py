@@ -378,6 +378,14 @@ def rasterize_lidar(
     start = torch.cumsum(per_tile, 0) - per_tile
     rank = torch.empty_like(order)
     rank[order] = torch.arange(order.numel(), device=device) - start[ray_tile[order]]
+    # Only tiles with rays are composited: a sparse training batch, or one time bin of a spinning
+    # lidar (a sector of the circle), leaves most tiles of the grid empty.
+    in_use = (per_tile > 0)[isects.tile_ids]
+    if not bool(in_use.all()):
+        kept_tiles = isects.tile_ids[in_use]
+        offsets = torch.zeros(num_tiles + 1, dtype=torch.int64, device=device)
+        offsets[1:] = torch.cumsum(torch.bincount(kept_tiles, minlength=num_tiles), 0)
+        isects = replace(isects, gaussian_ids=isects.gaussian_ids[in_use], tile_ids=kept_tiles, tile_offsets=offsets)
     # Rays are irregular: a few tiles hold many, most a few. Padding every tile to the fullest
     # would composite mostly padding, so a tile's rays are dealt into sub-tiles of `slots` rays,
     # each with the tile's Gaussian list (tiles without rays get none).
