@@ -32,10 +32,11 @@ def build_trainer(method: str, preset: str, seed: int, mode: str, out: Path):
     """The trainer ``ns-train METHOD idsplat-builtin --preset P --seed S`` would run, set up."""
     from nerfstudio.scripts.train import _set_random_seed
 
-    from method_configs.idsplat import idsplat_fast_method, idsplat_method, idsplat_preview_method
+    import method_configs.idsplat as methods
     from idsplat_ns.nerfstudio.builtin_scene import builtin_street
 
-    cfg = {"idsplat": idsplat_method, "idsplat-fast": idsplat_fast_method, "idsplat-preview": idsplat_preview_method}[method].config
+    # By name: a source tree of an older revision (bench_lidar_render.py --against) may lack a preset.
+    cfg = getattr(methods, method.replace("-", "_") + "_method").config
     cfg.pipeline.datamanager.dataparser.data = builtin_street(preset, seed)
     cfg.pipeline.datamanager.instance_mode = mode
     cfg.vis = "tensorboard"
