@@ -33,6 +33,9 @@ fi
 export PYTHONPATH="$SITE:$PWD${PYTHONPATH:+:$PYTHONPATH}"
 # The project itself, for nerfstudio's entry points (method and dataparsers).
 $PY -m pip install -q --no-index --no-deps --no-build-isolation --no-cache-dir --upgrade --target "$SITE" . || exit 1
+# That build leaves build/ and an egg-info here; a stale egg-info in the working directory would
+# shadow the installed entry points (a new preset) for every Python started from it.
+rm -rf build idsplat_ns.egg-info
 stamp "installed"
 # Fail in seconds, not after the build, where this Python lacks something the run imports.
 $PY -c "import method_configs.idsplat, nerfstudio.scripts.train, nerfstudio.scripts.eval" || exit 1
