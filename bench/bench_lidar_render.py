@@ -1,5 +1,5 @@
 """Time one training lidar batch (render, losses, backward) of a method preset on a built-in
-street, side by side with another revision of the engine in the same run.
+street, side by side with another revision's engine in the same run.
 
 The model is the one ``ns-train METHOD idsplat-builtin`` builds (oracle instance tracks, the
 Gaussians as initialised); the batches are the lidar supervisor's own draws, the same sequence for
@@ -11,12 +11,14 @@ that load on the machine falls on both alike. Quote the medians and their ratio.
     .venv/bin/python bench/bench_lidar_render.py --method idsplat --seed 100 --against v0 --out T.md
 
 Without git history (a GPU machine), pass the other revision as a source tree made here:
-``git archive REV idsplat_ns method_configs | tar -x -C .prev`` and ``--against-tree .prev``.
+``git archive REV idsplat_ns | tar -x -C .prev`` and ``--against-tree .prev``. The other revision's
+engine (``idsplat_ns``) runs with this checkout's presets either way.
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import os
 import statistics
@@ -76,12 +78,26 @@ def worktree(rev: str) -> Path:
     return path
 
 
+def engine_only(tree: Path) -> Path:
+    """A folder holding only ``tree``'s engine (``idsplat_ns``, linked): put before this checkout on
+    the path, it times that engine with this checkout's presets (``method_configs``), which are
+    what nerfstudio's installed entry points name."""
+    overlay = Path("/tmp") / f"idsplat-bench-engine-{hashlib.sha1(str(tree.resolve()).encode()).hexdigest()[:10]}"
+    overlay.mkdir(exist_ok=True)
+    link = overlay / "idsplat_ns"
+    if not link.exists():
+        link.symlink_to(tree.resolve() / "idsplat_ns")
+    return overlay
+
+
 def run_child(tree: Path, args: argparse.Namespace, work: Path) -> dict:
     cmd = [sys.executable, __file__, "--child", "--method", args.method, "--preset", args.preset, "--seed",
            str(args.seed), "--threads", str(args.threads), "--warmup", str(args.warmup), "--batches",
            str(args.batches), "--work", str(work)]  # fmt: skip
-    # The tree first; what the path held before (a --target install of the dependencies) after it.
-    path = os.pathsep.join([str(tree)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p])
+    # The engine first, then this checkout, then what the path held before (a --target install of
+    # the dependencies).
+    first = [str(REPO)] if tree == REPO else [str(engine_only(tree)), str(REPO)]
+    path = os.pathsep.join(first + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p])
     env = dict(os.environ, PYTHONPATH=path, OMP_NUM_THREADS=str(args.threads))
     done = subprocess.run(cmd, env=env, capture_output=True, text=True)
     line = [x for x in done.stdout.splitlines() if x.startswith("RESULT ")]
@@ -102,8 +118,8 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=2, help="alternations of the revisions")
     ap.add_argument("--against", default=None, help="git revision to time beside the working tree")
     ap.add_argument("--against-tree", type=Path, default=None,
-                    help="a source tree (idsplat_ns/ and method_configs/, e.g. from `git archive`) to time beside "
-                         "the working tree, where there is no git history (a GPU machine)")
+                    help="a source tree with idsplat_ns/ (e.g. from `git archive`) whose engine to time beside "
+                         "the working tree's, where there is no git history (a GPU machine)")
     ap.add_argument("--work", type=Path, default=Path("/tmp/idsplat-bench-lidar"))
     ap.add_argument("--out", type=Path, default=None, help="also write the markdown table here")
     args = ap.parse_args()
