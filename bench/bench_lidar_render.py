@@ -28,6 +28,8 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "bench"))
+from profile_train_step import PRESETS, build_trainer  # noqa: E402  (a sibling script, not a package)
 
 
 def _sync() -> None:
@@ -40,9 +42,6 @@ def _sync() -> None:
 def child(args: argparse.Namespace) -> None:
     """Build the model, then time ``--batches`` lidar batches after ``--warmup`` untimed ones."""
     import torch
-
-    sys.path.insert(0, str(REPO / "bench"))
-    from profile_train_step import build_trainer
 
     torch.set_num_threads(args.threads)
     trainer = build_trainer(args.method, args.preset, args.seed, "oracle", Path(args.work))
@@ -109,7 +108,7 @@ def run_child(tree: Path, args: argparse.Namespace, work: Path) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
-    ap.add_argument("--method", default="idsplat-fast", choices=["idsplat", "idsplat-fast", "idsplat-preview"])
+    ap.add_argument("--method", default="idsplat-fast", choices=list(PRESETS))
     ap.add_argument("--preset", default="small", help="built-in street preset")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--threads", type=int, default=2, help="torch CPU threads")

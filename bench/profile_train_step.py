@@ -23,6 +23,10 @@ from pathlib import Path
 import torch
 
 
+# The registered presets: ns-train name -> MethodSpecification in method_configs/idsplat.py.
+PRESETS = {"idsplat": "idsplat_method", "idsplat-fast": "idsplat_fast_method", "idsplat-preview": "idsplat_preview_method"}
+
+
 def _sync() -> None:
     if torch.cuda.is_available():
         torch.cuda.synchronize()
@@ -35,8 +39,7 @@ def build_trainer(method: str, preset: str, seed: int, mode: str, out: Path):
     import method_configs.idsplat as methods
     from idsplat_ns.nerfstudio.builtin_scene import builtin_street
 
-    # By name: a source tree of an older revision (bench_lidar_render.py --against) may lack a preset.
-    cfg = getattr(methods, method.replace("-", "_") + "_method").config
+    cfg = getattr(methods, PRESETS[method]).config
     cfg.pipeline.datamanager.dataparser.data = builtin_street(preset, seed)
     cfg.pipeline.datamanager.instance_mode = mode
     cfg.vis = "tensorboard"
@@ -70,7 +73,7 @@ def run_steps(trainer, first: int, count: int) -> list[float]:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--method", default="idsplat-fast", choices=["idsplat", "idsplat-fast", "idsplat-preview"])
+    ap.add_argument("--method", default="idsplat-fast", choices=list(PRESETS))
     ap.add_argument("--preset", default="small")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--mode", default="oracle", help="instance mode (oracle needs no preprocessing)")

@@ -37,6 +37,7 @@ from typing import Optional
 import numpy as np
 import torch
 from torch import Tensor
+from torch.nn.utils.rnn import pad_sequence
 
 from idsplat_ns.data.lidar import LidarSweep
 from idsplat_ns.errors import IDSplatError
@@ -202,9 +203,10 @@ def render_lidar_rays(
         per_group.append(posed)
     cut = None if cutoff_ranges is None else cutoff_ranges + along[:, 0]
     stacked = _stack_groups(per_group)
+    # Culled above, group by group (or culling is off): the rasterizer need not test again.
     out = rasterize_lidar(stacked["means"], stacked["quats"], stacked["scales"], stacked["opacities"],
                           stacked["features"], lidar_from_world.expand(num_groups, 4, 4), az, el,
-                          ray_bins=ray_group, ray_cutoff=cut, **rasterizer_kwargs)  # fmt: skip
+                          ray_bins=ray_group, ray_cutoff=cut, **dict(rasterizer_kwargs, cull=False))  # fmt: skip
     hit = out.alpha > 0
     return replace(
         out,
@@ -221,20 +223,7 @@ _RASTERIZER_DEFAULTS = {k: p.default for k, p in inspect.signature(rasterize_lid
 def _stack_groups(groups: list[dict]) -> dict[str, Tensor]:
     """The groups' posed Gaussians (``means`` [N_g, 3], ``quats``, ``scales``, ``opacities``,
     ``features``) stacked per bin, [G, max N_g, ...], the short ones padded with Gaussians of
-    opacity 0 (which the rasterizer drops)."""
-    size = max(g["means"].shape[0] for g in groups)
-    pad_values = {"means": 0.0, "quats": 0.0, "scales": 1.0, "opacities": 0.0, "features": 0.0}
-    stacked = {}
-    for name, value in pad_values.items():
-        rows = []
-        for g in groups:
-            x = g[name]
-            missing = size - x.shape[0]
-            if missing:
-                pad = x.new_full((missing,) + x.shape[1:], value)
-                if name == "quats":
-                    pad[:, 0] = 1.0  # a valid rotation, so the padding's covariance is finite
-                x = torch.cat([x, pad])
-            rows.append(x)
-        stacked[name] = torch.stack(rows)
-    return stacked
+    opacity 0 (which the rasterizer drops) and a valid rotation (quaternion (1, 1, 1, 1)), so that
+    no padding row has an undefined covariance."""
+    pad = {"means": 0.0, "quats": 1.0, "scales": 1.0, "opacities": 0.0, "features": 0.0}
+    return {k: pad_sequence([g[k] for g in groups], batch_first=True, padding_value=v) for k, v in pad.items()}
