@@ -18,18 +18,16 @@ engine (``idsplat_ns``) runs with this checkout's presets either way.
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
-import os
 import statistics
-import subprocess
 import sys
 import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "bench"))
-from profile_train_step import PRESETS, build_trainer  # noqa: E402  (a sibling script, not a package)
+import _revisions as revisions  # noqa: E402  (sibling scripts, not a package)
+from profile_train_step import PRESETS, build_trainer  # noqa: E402
 
 
 def _sync() -> None:
@@ -68,41 +66,11 @@ def child(args: argparse.Namespace) -> None:
                                   "gaussians": int(model.gaussians.num)}))  # fmt: skip
 
 
-def worktree(rev: str) -> Path:
-    """A git worktree of ``rev`` under /tmp (made once, reused while it is at that commit)."""
-    sha = subprocess.run(["git", "rev-parse", rev], cwd=REPO, check=True, capture_output=True, text=True).stdout.strip()
-    path = Path("/tmp") / f"idsplat-bench-{sha[:10]}"
-    if not path.is_dir():
-        subprocess.run(["git", "worktree", "add", "--detach", str(path), sha], cwd=REPO, check=True, capture_output=True)
-    return path
-
-
-def engine_only(tree: Path) -> Path:
-    """A folder holding only ``tree``'s engine (``idsplat_ns``, linked): put before this checkout on
-    the path, it times that engine with this checkout's presets (``method_configs``), which are
-    what nerfstudio's installed entry points name."""
-    overlay = Path("/tmp") / f"idsplat-bench-engine-{hashlib.sha1(str(tree.resolve()).encode()).hexdigest()[:10]}"
-    overlay.mkdir(exist_ok=True)
-    link = overlay / "idsplat_ns"
-    if not link.exists():
-        link.symlink_to(tree.resolve() / "idsplat_ns")
-    return overlay
-
-
 def run_child(tree: Path, args: argparse.Namespace, work: Path) -> dict:
-    cmd = [sys.executable, __file__, "--child", "--method", args.method, "--preset", args.preset, "--seed",
-           str(args.seed), "--threads", str(args.threads), "--warmup", str(args.warmup), "--batches",
-           str(args.batches), "--work", str(work)]  # fmt: skip
-    # The engine first, then this checkout, then what the path held before (a --target install of
-    # the dependencies).
-    first = [str(REPO)] if tree == REPO else [str(engine_only(tree)), str(REPO)]
-    path = os.pathsep.join(first + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p])
-    env = dict(os.environ, PYTHONPATH=path, OMP_NUM_THREADS=str(args.threads))
-    done = subprocess.run(cmd, env=env, capture_output=True, text=True)
-    line = [x for x in done.stdout.splitlines() if x.startswith("RESULT ")]
-    if done.returncode or not line:
-        raise SystemExit(f"bench_lidar_render.py: the run on {tree} failed:\n{done.stderr[-3000:]}")
-    return json.loads(line[-1][7:])
+    cmd = [__file__, "--child", "--method", args.method, "--preset", args.preset, "--seed", str(args.seed),
+           "--threads", str(args.threads), "--warmup", str(args.warmup), "--batches", str(args.batches),
+           "--work", str(work)]  # fmt: skip
+    return revisions.run_child("bench_lidar_render.py", cmd, tree, args.threads)
 
 
 def main() -> None:
@@ -125,13 +93,7 @@ def main() -> None:
     if args.child:
         child(args)
         return
-    trees = {"working tree": REPO}
-    if args.against:
-        trees[f"{args.against}"] = worktree(args.against)
-    if args.against_tree:
-        if not (args.against_tree / "idsplat_ns").is_dir():
-            raise SystemExit(f"bench_lidar_render.py: {args.against_tree} has no idsplat_ns/; pass a source tree")
-        trees[str(args.against_tree)] = args.against_tree.resolve()
+    trees = revisions.trees("bench_lidar_render.py", args.against, args.against_tree)
     times: dict[str, dict[str, list[float]]] = {name: {"forward": [], "both": []} for name in trees}
     info = {}
     for r in range(args.rounds):

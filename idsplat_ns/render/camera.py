@@ -12,6 +12,7 @@ from torch import Tensor
 from ..errors import IDSplatError
 from .projection import Projection, project_gaussians
 from .rolling_shutter import CameraMotion
+from .compiled_composite import CompiledGaussianComposite, use_compiled_compositor
 from .tile_composite import CompositePlan, TileCoefficients, TileComposite, pixel_basis
 from .tiles import intersect_tiles, tiles_to_image
 
@@ -89,6 +90,7 @@ def rasterize_camera(
     return_instance_alpha: bool = False,
     motion: Optional[CameraMotion] = None,
     chunk_elems: Optional[int] = None,
+    compositor: str = "auto",
 ) -> CameraRender:
     """Render C pinhole cameras: features, alpha, expected/median depth and instance IDs.
 
@@ -97,8 +99,10 @@ def rasterize_camera(
     :mod:`idsplat_ns.render.reference`). Differentiable w.r.t. means, quats, scales, opacities,
     features and viewmats. ``backend``: ``"torch"`` (tile rasterizer, any device), ``"gsplat"``
     (CUDA kernels) or ``"auto"`` (gsplat when the inputs are on CUDA and gsplat is installed).
-    ``tile_size`` and ``chunk_elems`` (the compositor's block size; None: the device's default)
-    only trade speed against memory in the torch backend; they never change the image. ``return_instance_alpha`` adds the per-instance alpha maps (one channel per distinct
+    ``tile_size``, ``chunk_elems`` (the torch compositor's block size; None: the device's
+    default) and ``compositor`` (``"compiled"``: numba loops on CPU tensors, ``"torch"``: tensor
+    ops on any device, ``"auto"``: compiled on the CPU) only trade speed against memory in the
+    torch backend; they never change the image beyond float rounding. ``return_instance_alpha`` adds the per-instance alpha maps (one channel per distinct
     ID in ``instance_ids``). ``motion``: rolling shutter, each Gaussian drawn where it is when its
     line is exposed (:mod:`idsplat_ns.render.rolling_shutter`); None or a global timing renders
     every Gaussian at the camera's time.
@@ -127,7 +131,7 @@ def rasterize_camera(
     return rasterize_projected(
         proj, opacities, features, width, height,
         instance_ids=instance_ids, tile_size=tile_size,
-        return_instance_alpha=return_instance_alpha, chunk_elems=chunk_elems,
+        return_instance_alpha=return_instance_alpha, chunk_elems=chunk_elems, compositor=compositor,
     )  # fmt: skip
 
 
@@ -142,6 +146,7 @@ def rasterize_projected(
     tile_size: int = 8,
     return_instance_alpha: bool = False,
     chunk_elems: Optional[int] = None,
+    compositor: str = "auto",
 ) -> CameraRender:
     """Torch tile rasterizer on already projected Gaussians (see :func:`rasterize_camera`).
 
@@ -168,24 +173,35 @@ def rasterize_projected(
         onehot = (slot[:, None] == torch.arange(k, device=device)[None, :]) & match[:, None]
         columns.append(onehot.to(dtype).repeat(cams, 1))
     feats = torch.cat(columns, dim=1)  # [C*N, D + 2 (+ K)]
-    # Per intersection: the exponent's coefficients in the pixel offset from the tile centre.
     b = tile_size
-    local = isects.tile_ids % (isects.tiles_x * isects.tiles_y)
-    cx = ((local % isects.tiles_x) * b).double() + 0.5 * b
-    cy = (torch.div(local, isects.tiles_x, rounding_mode="floor") * b).double() + 0.5 * b
-    # One gather of (mean, conic, opacity) per intersection: index_select's backward is a single
-    # index_add, far cheaper on CPU than three advanced-indexing backward passes. The float64
-    # coefficients come from a Function whose gradient is one [I, 6] tensor in the input dtype,
-    # so the gradients are accumulated per Gaussian in the input dtype.
-    per_gaussian = torch.cat(
-        [proj.means2d.reshape(-1, 2), proj.conics.reshape(-1, 3), opacities.repeat(cams)[:, None]], dim=1
-    )  # [C*N, 6]
-    coeffs = TileCoefficients.apply(per_gaussian.index_select(0, gid), cx, cy)
     plan = CompositePlan(
         tile_offsets=isects.tile_offsets, gaussian_ids=gid,
         basis=pixel_basis(b, device, torch.float64), block_elems=chunk_elems,
     )  # fmt: skip
-    pix, crossing = TileComposite.apply(coeffs, feats, plan)
+    if use_compiled_compositor(compositor, features):
+        # Each row's coefficients are made inside the compiled loop from its Gaussian's
+        # (mean, conic, log opacity), in float64 like quadratic_coefficients.
+        per_gaussian = torch.cat(
+            [proj.means2d.reshape(-1, 2).double(), proj.conics.reshape(-1, 3).double(),
+             opacities.double().clamp_min(1e-30).log().repeat(cams)[:, None]], dim=1,
+        )  # fmt: skip  # [C*N, 6]
+        local = torch.arange(isects.num_tiles, device=device) % (isects.tiles_x * isects.tiles_y)
+        centres = torch.stack([local % isects.tiles_x, torch.div(local, isects.tiles_x, rounding_mode="floor")], 1)
+        pix, crossing = CompiledGaussianComposite.apply(per_gaussian, feats, plan, centres.double() * b + 0.5 * b)
+    else:
+        # Per intersection: the exponent's coefficients in the pixel offset from the tile centre.
+        local = isects.tile_ids % (isects.tiles_x * isects.tiles_y)
+        cx = ((local % isects.tiles_x) * b).double() + 0.5 * b
+        cy = (torch.div(local, isects.tiles_x, rounding_mode="floor") * b).double() + 0.5 * b
+        # One gather of (mean, conic, opacity) per intersection: index_select's backward is a
+        # single index_add, far cheaper on CPU than three advanced-indexing backward passes. The
+        # float64 coefficients come from a Function whose gradient is one [I, 6] tensor in the
+        # input dtype, so the gradients are accumulated per Gaussian in the input dtype.
+        per_gaussian = torch.cat(
+            [proj.means2d.reshape(-1, 2), proj.conics.reshape(-1, 3), opacities.repeat(cams)[:, None]], dim=1
+        )  # [C*N, 6]
+        coeffs = TileCoefficients.apply(per_gaussian.index_select(0, gid), cx, cy)
+        pix, crossing = TileComposite.apply(coeffs, feats, plan)
     out = tiles_to_image(pix, isects, width, height)
     feats_img, depth_sum, alpha = out[..., :d], out[..., d : d + 1], out[..., d + 1 : d + 2]
     has = alpha > 0

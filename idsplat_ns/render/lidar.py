@@ -28,6 +28,7 @@ import torch
 from torch import Tensor
 
 from ..errors import IDSplatError
+from .compiled_composite import CompiledTileComposite, use_compiled_compositor
 from .projection import covariance_3d
 from .reference import ALPHA_MIN
 from .tile_composite import (
@@ -281,6 +282,7 @@ def rasterize_lidar(
     chunk_elems: Optional[int] = None,  # compositor block size (None: the device's default)
     ray_cutoff: Optional[Tensor] = None,  # [R] metres from the sensor origin (line of sight)
     cull: bool = True,
+    compositor: str = "auto",  # "compiled" (numba, CPU), "torch" (tensor ops) or "auto" (compiled on the CPU)
 ) -> LidarRender:
     """Render lidar rays: expected/median range, features and alpha per ray (differentiable).
 
@@ -429,7 +431,8 @@ def rasterize_lidar(
         slot_valid=slot_valid, block_elems=chunk_elems,
         cutoff_depths=cutoff, gaussian_depths=None if cutoff is None else flat_range.detach(),
     )  # fmt: skip
-    composited = TileComposite.apply(coeffs, feats, plan)
+    composite = CompiledTileComposite if use_compiled_compositor(compositor, feats) else TileComposite
+    composited = composite.apply(coeffs, feats, plan)
     pix, crossing = composited[0], composited[1]
     flat_slot = ray_sub * slots + slot
     before_cutoff = composited[2].reshape(-1)[flat_slot][:, None] if cutoff is not None else None

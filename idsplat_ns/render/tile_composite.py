@@ -250,7 +250,9 @@ def _forward_block(st: _ForwardState, tiles: Tensor, start: int, carry: Tensor, 
     # (~1e-7 of terms up to ~1e2) would dominate the error of the whole rasterizer.
     coeffs = st.coeffs.index_select(0, rows_flat).view(ta, lb, 6)
     t = _log_alpha(coeffs, st.neg_basis, tiles, st.work64.get("t64", (ta * lb, slots)))
-    t = t.to(dtype).view(ta, lb, slots)
+    # A copy even in float64: alpha is made from t in place and kept for the backward pass, while
+    # the float64 buffer is reused by the next block.
+    t = t.to(dtype, copy=True).view(ta, lb, slots)
     maybe_clamped = bool(t.amax() > _CLAMP_FLAG_ABOVE)
     t.clamp_(-_T_SKIP - 1.0, -_T_CLAMP)  # log alpha, [Ta, L, S]
     # threshold (not masked_fill with a bool mask): several times faster on CPU.
