@@ -8,6 +8,7 @@ tiles, per-instance channels, lidar padding slots and the line-of-sight cut-off.
 """
 
 import math
+import threading
 
 import numpy as np
 import pytest
@@ -132,3 +133,24 @@ def test_compositor_option_errors_name_the_option():
     with pytest.raises(IDSplatError, match="compositor='compiled' runs on float32/float64 CPU tensors"):
         cc.use_compiled_compositor("compiled", feats16)
     assert not cc.use_compiled_compositor("auto", feats16) and cc.use_compiled_compositor("auto", base[4])
+
+
+def test_two_threads_composite_at_once_and_agree():
+    # Training and the viewer render from two Python threads: the threading layer must be a
+    # thread-safe one (numba's fallback aborts the process), and each tile's sums are one
+    # thread's, so the image is the same bit for bit.
+    assert cc.threadsafe_layer() in ("omp", "tbb")
+    base, vm, Ks, _ = _camera_scene(torch.float32)
+    want = rasterize_camera(*base, vm, Ks, 45, 33, backend="torch", compositor="compiled").features
+    results = [None, None]
+
+    def work(k):
+        for _ in range(3):
+            results[k] = rasterize_camera(*base, vm, Ks, 45, 33, backend="torch", compositor="compiled").features
+
+    threads = [threading.Thread(target=work, args=(k,)) for k in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert all(torch.equal(r, want) for r in results)

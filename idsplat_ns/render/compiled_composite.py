@@ -31,7 +31,12 @@ coefficient gradient has one writer; feature gradients are summed per thread, th
 from __future__ import annotations
 
 import contextlib
+import functools
+import importlib
 import math
+import os
+import warnings
+from typing import Optional
 
 import numba
 import numpy as np
@@ -122,6 +127,8 @@ def _forward(coeffs, params, centres, basis, feats, gid, offsets, order, valid, 
         cross = np.zeros(slots, feats.dtype)  # exact counts (rows per tile < 2^24)
         first_drop = np.empty(slots, feats.dtype)
         w = np.empty(slots, feats.dtype)
+        w_kept = np.empty(slots, feats.dtype)
+        pending = -1  # feature row of a composited row not yet added to the sums
         a = np.empty(slots, feats.dtype)
         o = out[t]
         bf = before[t] if has_cutoff else before[0:0].reshape(-1)
@@ -162,15 +169,27 @@ def _forward(coeffs, params, centres, basis, feats, gid, offsets, order, valid, 
             if w_sum == zero:
                 continue
             g = gid[r]
-            for j in range(d):
-                f = feats[g, j]
-                oj = o[j]
+            if pending < 0:  # keep the row; it is added with the next one
+                pending = g
                 for s in range(slots):
-                    oj[s] += w[s] * f
+                    w_kept[s] = w[s]
+            else:  # two rows per pass over the sums: half the loads and stores of ``o``
+                for j in range(d):
+                    f0, f1 = feats[pending, j], feats[g, j]
+                    oj = o[j]
+                    for s in range(slots):
+                        oj[s] += w_kept[s] * f0 + w[s] * f1
+                pending = -1
             if has_cutoff:
                 dg = gdepth[g]
                 for s in range(slots):
                     bf[s] += a[s] * (one * (dg < ct[s])) * (one * (w[s] > zero))
+        if pending >= 0:
+            for j in range(d):
+                f0 = feats[pending, j]
+                oj = o[j]
+                for s in range(slots):
+                    oj[s] += w_kept[s] * f0
         for s in range(slots):
             crossing[t, s] = np.int32(cross[s])
             stop[t, s] = first_drop[s]
@@ -178,7 +197,7 @@ def _forward(coeffs, params, centres, basis, feats, gid, offsets, order, valid, 
 
 
 @njit(fastmath=_FAST, error_model="numpy", cache=True)
-def _rows_backward(n, go, gb, ct, b, cx, cy, rows, g_rows, w_rows, a_rows, om_rows, m_rows, f_rows, behind, p,
+def _rows_backward(n, go, gb, ct, b, cx, cy, rows, g_rows, w_rows, a_rows, om_rows, m_rows, behind,
                    feats, gdepth, params, has_cutoff, g_coeffs, g_params, g_feats, one, zero):  # fmt: skip
     """Gradients of a batch of ``n`` rows of one tile, collected back to front: ``go`` [D, S]
     the tile's output gradient, ``behind`` [S] (float64) the sum of ``g w`` behind the batch,
@@ -200,16 +219,14 @@ def _rows_backward(n, go, gb, ct, b, cx, cy, rows, g_rows, w_rows, a_rows, om_ro
                 acc += w[s] * goj[s]
             gfe[j] += acc
         dg = gdepth[g] if has_cutoff else zero
+        q0 = q1 = q2 = q3 = q4 = q5 = 0.0
         for s in range(w.shape[0]):
             gws = gw[s] * w[s]
             ps = behind[s] * (a[s] / om[s]) - gws
             if has_cutoff:  # line of sight: dL/dalpha += g on rows in front of the cut-off
                 ps -= a[s] * gb[s] * (one * (dg < ct[s])) * (one * (w[s] > zero))
-            p[s] = ps * m[s]
+            ps = ps * m[s]
             behind[s] += gws
-        q0 = q1 = q2 = q3 = q4 = q5 = 0.0
-        for s in range(w.shape[0]):
-            ps = p[s]
             q0 += ps
             q1 += ps * b[1, s]
             q2 += ps * b[2, s]
@@ -254,13 +271,11 @@ def _backward(coeffs, params, centres, basis, feats, gid, offsets, order, valid,
         a_rows = np.empty((_BATCH, slots), feats.dtype)
         om_rows = np.empty((_BATCH, slots), feats.dtype)
         m_rows = np.empty((_BATCH, slots), feats.dtype)
-        f_rows = np.empty((_BATCH, d), feats.dtype)
         g_rows = np.empty(_BATCH, np.int64)
         rows = np.empty(_BATCH, np.int64)
         behind = np.zeros(slots)  # float64: sum of g w of the rows behind
-        p = np.empty(slots)  # float64 dL/de
         go = g_out[t]
-        gb = g_before[t] if has_cutoff else p[0:0].astype(feats.dtype)
+        gb = g_before[t] if has_cutoff else trans[0:0]
         ct = cutoff[t] if has_cutoff else gb
         last = 0.0
         for s in range(slots):
@@ -298,20 +313,45 @@ def _backward(coeffs, params, centres, basis, feats, gid, offsets, order, valid,
             g_rows[n], rows[n] = gid[r], r
             n += 1
             if n == _BATCH:
-                _rows_backward(n, go, gb, ct, b, cx, cy, rows, g_rows, w_rows, a_rows, om_rows, m_rows, f_rows,
-                               behind, p, feats, gdepth, params, has_cutoff, g_coeffs, g_params, g_feats, one, zero)  # fmt: skip
+                _rows_backward(n, go, gb, ct, b, cx, cy, rows, g_rows, w_rows, a_rows, om_rows, m_rows,
+                               behind, feats, gdepth, params, has_cutoff, g_coeffs, g_params, g_feats, one, zero)  # fmt: skip
                 n = 0
         if n > 0:
-            _rows_backward(n, go, gb, ct, b, cx, cy, rows, g_rows, w_rows, a_rows, om_rows, m_rows, f_rows,
-                           behind, p, feats, gdepth, params, has_cutoff, g_coeffs, g_params, g_feats, one, zero)  # fmt: skip
+            _rows_backward(n, go, gb, ct, b, cx, cy, rows, g_rows, w_rows, a_rows, om_rows, m_rows,
+                           behind, feats, gdepth, params, has_cutoff, g_coeffs, g_params, g_feats, one, zero)  # fmt: skip
 
 
 COMPOSITORS = ("auto", "compiled", "torch")
 
 
+@functools.lru_cache(maxsize=1)
+def threadsafe_layer() -> Optional[str]:
+    """The thread-safe numba threading layer this machine can load ("omp" or "tbb"), or None.
+
+    The compositor may run from two Python threads at once (training and the viewer); numba's
+    fallback layer ("workqueue") aborts the process then, so the compiled loops are only used
+    with a thread-safe one (``NUMBA_THREADING_LAYER`` set by the user is respected)."""
+    for name, module in (("omp", "omppool"), ("tbb", "tbbpool")):
+        try:
+            importlib.import_module(f"numba.np.ufunc.{module}")
+            return name
+        except ImportError:
+            continue
+    warnings.warn(
+        "idsplat_ns: numba has no thread-safe threading layer here (no libgomp1, no tbb); the CPU rasterizers "
+        "use the slower torch compositor. Install libgomp1 (apt-get install libgomp1) or tbb (pip install tbb)."
+    )
+    return None
+
+
+if "NUMBA_THREADING_LAYER" not in os.environ:
+    numba.config.THREADING_LAYER = "threadsafe"
+
+
 def use_compiled_compositor(compositor: str, feats: Tensor) -> bool:
     """Whether ``compositor`` (one of :data:`COMPOSITORS`) means the compiled loops for ``feats``:
-    ``"auto"`` takes them for float CPU tensors, ``"compiled"`` insists on them."""
+    ``"auto"`` takes them for float CPU tensors where a thread-safe layer loads, ``"compiled"``
+    insists on them."""
     if compositor not in COMPOSITORS:
         raise IDSplatError(f"compositor={compositor!r}: use one of {', '.join(COMPOSITORS)}")
     usable = feats.device.type == "cpu" and feats.dtype in (torch.float32, torch.float64)
@@ -320,7 +360,12 @@ def use_compiled_compositor(compositor: str, feats: Tensor) -> bool:
             f"compositor='compiled' runs on float32/float64 CPU tensors, not {feats.dtype} on {feats.device}; "
             "use compositor='torch' or 'auto'"
         )
-    return compositor != "torch" and usable
+    if compositor == "compiled" and threadsafe_layer() is None:
+        raise IDSplatError(
+            "compositor='compiled' needs an OpenMP runtime (libgomp1: apt-get install libgomp1) or TBB "
+            "(pip install tbb) for numba's threads; install one or use compositor='torch'"
+        )
+    return compositor != "torch" and usable and threadsafe_layer() is not None
 
 
 def _threads() -> int:
