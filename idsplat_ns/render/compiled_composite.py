@@ -6,7 +6,8 @@ pass a kernel of its own; a loop per tile keeps a row's work in registers and L1
 tile's early stop, and keeps nothing for the backward pass but each sample's final transmittance
 and stop row.
 
-Each tile is one task (tiles run in parallel on ``torch.get_num_threads()`` threads). Inside a
+Tiles are dealt to ``torch.get_num_threads()`` Python threads that run the compiled loops with
+the GIL released (longest lists first, round-robin, so the threads take about as long). Inside a
 tile, rows go front to back and the tile's samples in lockstep, as the threads of a CUDA block
 do, so every inner loop runs over the samples without branches (selects) and is vectorised:
 
@@ -30,18 +31,14 @@ coefficient gradient has one writer; feature gradients are summed per thread, th
 
 from __future__ import annotations
 
-import contextlib
-import functools
-import importlib
 import math
-import os
-import warnings
+import threading
+from concurrent.futures import ThreadPoolExecutor
 from typing import Optional
 
-import numba
 import numpy as np
 import torch
-from numba import njit, prange
+from numba import njit
 from torch import Tensor
 
 from ..errors import IDSplatError
@@ -62,7 +59,7 @@ _BATCH = 32  # rows recovered (backward) before their gradients are taken, one a
 # Inner loops run over a tile's samples with selects written as arithmetic (``one * (x > y)``
 # and ``k * a + (one - k) * b``): numba compiles a conditional expression to a branch, which the
 # loop vectoriser gives up on, and a blend of exact 0/1 weights is exact.
-_JIT = dict(parallel=True, cache=True, fastmath=_FAST, error_model="numpy")
+_JIT = dict(nogil=True, cache=True, fastmath=_FAST, error_model="numpy")
 
 
 @njit(inline="always", fastmath=_FAST)
@@ -115,7 +112,7 @@ def _forward(coeffs, params, centres, basis, feats, gid, offsets, order, valid, 
     slots, d = basis.shape[2], feats.shape[1]
     from_coeffs = coeffs.shape[0] > 0
     has_valid, has_cutoff = valid.shape[0] > 0, cutoff.shape[0] > 0
-    for i in prange(order.shape[0]):
+    for i in range(order.shape[0]):
         t = order[i]
         b = basis[0] if basis.shape[0] == 1 else basis[t]
         b1, b2, b3, b4, b5 = b[1], b[2], b[3], b[4], b[5]
@@ -243,26 +240,23 @@ def _rows_backward(n, go, gb, ct, b, cx, cy, rows, g_rows, w_rows, a_rows, om_ro
 
 @njit(**_JIT)
 def _backward(coeffs, params, centres, basis, feats, gid, offsets, order, valid, cutoff, gdepth, consts,
-              stop, t_final, g_out, g_before, g_coeffs, g_params_threads, g_feats_threads):  # fmt: skip
-    """Gradients of :func:`_forward`'s outputs: ``g_out`` [T, D, S] and ``g_before`` [T, S]
-    (empty: none) give ``g_coeffs`` [I, 6] (coefficient mode) or ``g_params_threads``
-    [threads, G, 6] (parameter mode), and ``g_feats_threads`` [threads, G, D] (summed by the
-    caller). Rows are recovered back to front one by one and their products with the output
+              stop, t_final, g_out, g_before, g_coeffs, g_params, g_feats):  # fmt: skip
+    """Gradients of :func:`_forward`'s outputs for the tiles in ``order``: ``g_out`` [T, D, S]
+    and ``g_before`` [T, S] (empty: none) give ``g_coeffs`` [I, 6] (coefficient mode) or add to
+    ``g_params`` [G, 6] (parameter mode), and add to ``g_feats`` [G, D] (one buffer per thread,
+    summed by the caller). Rows are recovered back to front one by one and their products with the output
     gradient taken ``_BATCH`` rows at a time (:func:`_rows_backward`)."""
     e_clamp, e_max, alpha_min, t_min, half, one, zero, scale = consts[:8]
     c2, c3, c4, c5, c6, c7, c8, c9 = consts[8:16]
     slots, d = basis.shape[2], feats.shape[1]
     from_coeffs = coeffs.shape[0] > 0
     has_valid, has_cutoff = valid.shape[0] > 0, g_before.shape[0] > 0
-    for i in prange(order.shape[0]):
+    for i in range(order.shape[0]):
         t = order[i]
         b = basis[0] if basis.shape[0] == 1 else basis[t]
         b1, b2, b3, b4, b5 = b[1], b[2], b[3], b[4], b[5]
         cx, cy = (0.0, 0.0) if from_coeffs else (centres[t, 0], centres[t, 1])
         start = offsets[t]
-        thread = numba.get_thread_id()
-        g_feats = g_feats_threads[thread]
-        g_params = g_params_threads[0 if from_coeffs else thread]
         trans = np.empty(slots, feats.dtype)
         live = np.empty(slots, feats.dtype)
         stop_t = np.empty(slots, feats.dtype)
@@ -324,34 +318,10 @@ def _backward(coeffs, params, centres, basis, feats, gid, offsets, order, valid,
 COMPOSITORS = ("auto", "compiled", "torch")
 
 
-@functools.lru_cache(maxsize=1)
-def threadsafe_layer() -> Optional[str]:
-    """The thread-safe numba threading layer this machine can load ("omp" or "tbb"), or None.
-
-    The compositor may run from two Python threads at once (training and the viewer); numba's
-    fallback layer ("workqueue") aborts the process then, so the compiled loops are only used
-    with a thread-safe one (``NUMBA_THREADING_LAYER`` set by the user is respected)."""
-    for name, module in (("omp", "omppool"), ("tbb", "tbbpool")):
-        try:
-            importlib.import_module(f"numba.np.ufunc.{module}")
-            return name
-        except ImportError:
-            continue
-    warnings.warn(
-        "idsplat_ns: numba has no thread-safe threading layer here (no libgomp1, no tbb); the CPU rasterizers "
-        "use the slower torch compositor. Install libgomp1 (apt-get install libgomp1) or tbb (pip install tbb)."
-    )
-    return None
-
-
-if "NUMBA_THREADING_LAYER" not in os.environ:
-    numba.config.THREADING_LAYER = "threadsafe"
-
-
-def use_compiled_compositor(compositor: str, feats: Tensor) -> bool:
+def use_compiled_compositor(compositor: str, feats: Tensor, auto: bool = True) -> bool:
     """Whether ``compositor`` (one of :data:`COMPOSITORS`) means the compiled loops for ``feats``:
-    ``"auto"`` takes them for float CPU tensors where a thread-safe layer loads, ``"compiled"``
-    insists on them."""
+    ``"auto"`` takes them (when the caller's ``auto`` says so) for float CPU tensors,
+    ``"compiled"`` insists on them."""
     if compositor not in COMPOSITORS:
         raise IDSplatError(f"compositor={compositor!r}: use one of {', '.join(COMPOSITORS)}")
     usable = feats.device.type == "cpu" and feats.dtype in (torch.float32, torch.float64)
@@ -360,27 +330,39 @@ def use_compiled_compositor(compositor: str, feats: Tensor) -> bool:
             f"compositor='compiled' runs on float32/float64 CPU tensors, not {feats.dtype} on {feats.device}; "
             "use compositor='torch' or 'auto'"
         )
-    if compositor == "compiled" and threadsafe_layer() is None:
-        raise IDSplatError(
-            "compositor='compiled' needs an OpenMP runtime (libgomp1: apt-get install libgomp1) or TBB "
-            "(pip install tbb) for numba's threads; install one or use compositor='torch'"
-        )
-    return compositor != "torch" and usable and threadsafe_layer() is not None
+    if compositor == "auto" and not auto:
+        return False
+    return compositor != "torch" and usable
+
+
+# Threads are Python threads running the kernels with the GIL released, not numba's parallel
+# loops: numba's OpenMP pool is a second OpenMP runtime beside torch's, and with both spinning,
+# two 1-thread trainings on 2 cores ran their camera steps 4x slower than one alone.
+_POOL: Optional[ThreadPoolExecutor] = None
+_POOL_LOCK = threading.Lock()
 
 
 def _threads() -> int:
-    return max(1, min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS))
+    return max(1, torch.get_num_threads())
 
 
-@contextlib.contextmanager
-def _one_tile_per_chunk():
-    """Tiles of very unequal list length: threads take them one at a time (static chunks of a
-    sorted order would leave one thread with the long lists)."""
-    previous = numba.set_parallel_chunksize(1)
-    try:
-        yield
-    finally:
-        numba.set_parallel_chunksize(previous)
+def _run_split(kernel, order: np.ndarray, threads: int, per_part) -> None:
+    """Run ``kernel(order=part, **per_part(k))`` on ``threads`` parts of ``order`` (dealt round-robin
+    from the longest list down, so that the parts take about as long), the first part in this
+    thread and the others in a shared pool of idle (blocked, not spinning) threads."""
+    global _POOL
+    parts = [order[k::threads] for k in range(threads)]
+    if threads == 1:
+        kernel(order=parts[0], **per_part(0))
+        return
+    with _POOL_LOCK:
+        if _POOL is None or _POOL._max_workers < threads - 1:
+            _POOL = ThreadPoolExecutor(max_workers=threads - 1, thread_name_prefix="idsplat-composite")
+        pool = _POOL
+    futures = [pool.submit(kernel, order=parts[k], **per_part(k)) for k in range(1, threads)]
+    kernel(order=parts[0], **per_part(0))
+    for f in futures:
+        f.result()
 
 
 def _array(x: Tensor, dtype) -> np.ndarray:
@@ -390,7 +372,6 @@ def _array(x: Tensor, dtype) -> np.ndarray:
 def _composite_forward(ctx, coeffs: np.ndarray, params: np.ndarray, centres: np.ndarray, feats: Tensor, plan):
     """Run :func:`_forward` and keep on ``ctx`` what :func:`_composite_backward` needs."""
     threads = _threads()
-    numba.set_num_threads(threads)
     dtype = feats.dtype
     n_tiles, slots, d = plan.num_tiles, plan.slots, feats.shape[1]
     offsets = plan.tile_offsets.numpy()
@@ -402,7 +383,7 @@ def _composite_forward(ctx, coeffs: np.ndarray, params: np.ndarray, centres: np.
     has_cutoff = plan.cutoff_depths is not None
     arrays = dict(
         coeffs=coeffs, params=params, centres=centres, basis=_array(basis, torch.float64),
-        feats=_array(feats, dtype), gid=_array(plan.gaussian_ids, torch.int64), offsets=offsets, order=order,
+        feats=_array(feats, dtype), gid=_array(plan.gaussian_ids, torch.int64), offsets=offsets,
         valid=np.zeros((0, slots), np_dtype) if plan.slot_valid is None else _array(plan.slot_valid, dtype),
         cutoff=_array(plan.cutoff_depths, dtype) if has_cutoff else np.zeros((0, slots), np_dtype),
         gdepth=_array(plan.gaussian_depths, dtype) if has_cutoff else np.zeros(0, np_dtype),
@@ -413,9 +394,10 @@ def _composite_forward(ctx, coeffs: np.ndarray, params: np.ndarray, centres: np.
     before = np.zeros((n_tiles if has_cutoff else 0, slots), np_dtype)
     stop = np.zeros((n_tiles, slots), np.int64)  # rows relative to the tile's start
     t_final = np.ones((n_tiles, slots), np_dtype)
-    with _one_tile_per_chunk():
-        _forward(**arrays, out=out, crossing=crossing, before=before, stop=stop, t_final=t_final)
-    ctx.arrays, ctx.stop, ctx.t_final, ctx.threads, ctx.has_cutoff = arrays, stop, t_final, threads, has_cutoff
+    outputs = dict(out=out, crossing=crossing, before=before, stop=stop, t_final=t_final)
+    _run_split(_forward, order, threads, lambda k: {**arrays, **outputs})  # tiles are disjoint: shared outputs
+    ctx.arrays, ctx.order, ctx.stop, ctx.t_final = arrays, order, stop, t_final
+    ctx.threads, ctx.has_cutoff = threads, has_cutoff
     crossing_t = torch.from_numpy(crossing).long()
     ctx.mark_non_differentiable(crossing_t)
     out_t = torch.from_numpy(out).transpose(1, 2).reshape(n_tiles * slots, d)
@@ -430,7 +412,6 @@ def _composite_backward(ctx, grad_out: Tensor, grad_before_cutoff: tuple):
     arrays = ctx.arrays
     n_tiles, slots = ctx.stop.shape
     feats, threads = arrays["feats"], ctx.threads
-    numba.set_num_threads(threads)
     g_out = _array(grad_out.reshape(n_tiles, slots, -1).transpose(1, 2), grad_out.dtype)  # [T, D, S]
     g_before = np.zeros((0, slots), feats.dtype)
     if ctx.has_cutoff and grad_before_cutoff and grad_before_cutoff[0] is not None:
@@ -438,9 +419,11 @@ def _composite_backward(ctx, grad_out: Tensor, grad_before_cutoff: tuple):
     g_coeffs = np.zeros_like(arrays["coeffs"])
     g_params = np.zeros((threads if arrays["params"].shape[0] else 1,) + arrays["params"].shape)
     g_feats = np.zeros((threads,) + feats.shape, feats.dtype)
-    with _one_tile_per_chunk():
-        _backward(**arrays, stop=ctx.stop, t_final=ctx.t_final, g_out=g_out, g_before=g_before,
-                  g_coeffs=g_coeffs, g_params_threads=g_params, g_feats_threads=g_feats)  # fmt: skip
+    shared = dict(arrays, stop=ctx.stop, t_final=ctx.t_final, g_out=g_out, g_before=g_before, g_coeffs=g_coeffs)
+    # A row belongs to one tile (its coefficient gradient has one writer); a Gaussian's parameter
+    # and feature gradients gather from many tiles, so each thread has buffers of its own.
+    _run_split(_backward, ctx.order, threads,
+               lambda k: dict(shared, g_params=g_params[k if g_params.shape[0] > 1 else 0], g_feats=g_feats[k]))  # fmt: skip
     return g_coeffs, g_params.sum(0), torch.from_numpy(g_feats.sum(0) if threads > 1 else g_feats[0])
 
 
