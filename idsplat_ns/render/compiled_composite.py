@@ -318,10 +318,9 @@ def _backward(coeffs, params, centres, basis, feats, gid, offsets, order, valid,
 COMPOSITORS = ("auto", "compiled", "torch")
 
 
-def use_compiled_compositor(compositor: str, feats: Tensor, auto: bool = True) -> bool:
+def use_compiled_compositor(compositor: str, feats: Tensor) -> bool:
     """Whether ``compositor`` (one of :data:`COMPOSITORS`) means the compiled loops for ``feats``:
-    ``"auto"`` takes them (when the caller's ``auto`` says so) for float CPU tensors,
-    ``"compiled"`` insists on them."""
+    ``"auto"`` takes them for float CPU tensors, ``"compiled"`` insists on them."""
     if compositor not in COMPOSITORS:
         raise IDSplatError(f"compositor={compositor!r}: use one of {', '.join(COMPOSITORS)}")
     usable = feats.device.type == "cpu" and feats.dtype in (torch.float32, torch.float64)
@@ -330,8 +329,6 @@ def use_compiled_compositor(compositor: str, feats: Tensor, auto: bool = True) -
             f"compositor='compiled' runs on float32/float64 CPU tensors, not {feats.dtype} on {feats.device}; "
             "use compositor='torch' or 'auto'"
         )
-    if compositor == "auto" and not auto:
-        return False
     return compositor != "torch" and usable
 
 

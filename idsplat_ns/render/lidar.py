@@ -282,7 +282,7 @@ def rasterize_lidar(
     chunk_elems: Optional[int] = None,  # compositor block size (None: the device's default)
     ray_cutoff: Optional[Tensor] = None,  # [R] metres from the sensor origin (line of sight)
     cull: bool = True,
-    compositor: str = "auto",  # "compiled" (numba, CPU), "torch" (tensor ops) or "auto" (torch here)
+    compositor: str = "auto",  # "compiled" (numba, CPU), "torch" (tensor ops) or "auto" (compiled on the CPU)
 ) -> LidarRender:
     """Render lidar rays: expected/median range, features and alpha per ray (differentiable).
 
@@ -298,9 +298,8 @@ def rasterize_lidar(
     those its own rays may reach (same output, less work). Gaussians with an opacity at or below
     1/255 are dropped either way: they can never reach the compositor's alpha threshold.
 
-    ``compositor``: ``"auto"`` is the torch compositor for lidar, on any device (per row, the
-    compiled loops cost more than they save on sub-tiles of a few rays); ``"compiled"`` runs the
-    numba loops on CPU tensors (same result to float rounding).
+    ``compositor``: ``"compiled"`` (numba loops, CPU tensors), ``"torch"`` (tensor ops, any
+    device) or ``"auto"`` (compiled on the CPU); the same result to float rounding.
 
     Scales, opacities and features are shared by the bins ([N, ...]) or given per bin ([K, N, ...]):
     per bin, each bin is its own set of Gaussians (padding with opacity 0 is dropped), so bins whose
@@ -435,10 +434,7 @@ def rasterize_lidar(
         slot_valid=slot_valid, block_elems=chunk_elems,
         cutoff_depths=cutoff, gaussian_depths=None if cutoff is None else flat_range.detach(),
     )  # fmt: skip
-    # "auto" is the torch compositor here: lidar sub-tiles hold a few rays each, and per row the
-    # compiled loops then cost more than they save (a training lidar batch: 1.30 s against 0.84 s).
-    compiled = use_compiled_compositor(compositor, feats, auto=False)
-    composite = CompiledTileComposite if compiled else TileComposite
+    composite = CompiledTileComposite if use_compiled_compositor(compositor, feats) else TileComposite
     composited = composite.apply(coeffs, feats, plan)
     pix, crossing = composited[0], composited[1]
     flat_slot = ray_sub * slots + slot
