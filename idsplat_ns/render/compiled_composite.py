@@ -76,6 +76,22 @@ def _exp_neg(e, scale, one, c2, c3, c4, c5, c6, c7, c8, c9):
 
 
 @njit(inline="always")
+def _alpha_constants(consts):
+    """What :func:`_alpha` needs, from the kernels' ``consts`` (see :data:`_CONSTANTS`)."""
+    return (consts[0], consts[1], consts[2], consts[7], consts[5], consts[8], consts[9], consts[10],
+            consts[11], consts[12], consts[13], consts[14], consts[15])  # fmt: skip
+
+
+@njit(inline="always", fastmath=_FAST)
+def _alpha(e, ac):
+    """Alpha of exponent ``e``: ``exp(-e)`` clamped at 0.999, zero below 1/255 (``ac`` from
+    :func:`_alpha_constants`)."""
+    e_clamp, e_max, alpha_min, scale, one = ac[0], ac[1], ac[2], ac[3], ac[4]
+    al = _exp_neg(min(max(e, e_clamp), e_max), scale, one, ac[5], ac[6], ac[7], ac[8], ac[9], ac[10], ac[11], ac[12])
+    return al * (one * (al >= alpha_min))
+
+
+@njit(inline="always")
 def _row_coefficients(p, cx, cy):
     """:func:`~idsplat_ns.render.tile_composite.quadratic_coefficients` of one row: ``p`` =
     (mean x, mean y, a, b, c, log opacity) of its Gaussian, ``(cx, cy)`` its tile's centre."""
@@ -99,6 +115,27 @@ def _add_params_gradient(g, p, cx, cy, g0, g1, g2, g3, g4, g5):
     g[5] -= g0
 
 
+@njit(inline="always")
+def _tile_basis(basis, centres, t, from_coeffs):
+    """Tile ``t``'s basis [6, S] and its centre (the origin of the parameters' offsets)."""
+    b = basis[0] if basis.shape[0] == 1 else basis[t]
+    cx, cy = (0.0, 0.0) if from_coeffs else (centres[t, 0], centres[t, 1])
+    return b, cx, cy
+
+
+@njit(inline="always", fastmath=_FAST)
+def _row_exponents(e, r, b, coeffs, params, gid, cx, cy, from_coeffs):
+    """Write the exponent of row ``r`` at every sample into ``e`` [S]: the polynomial in float64
+    (its terms cancel), rounded once into ``e``'s dtype."""
+    if from_coeffs:
+        k0, k1, k2, k3, k4, k5 = coeffs[r, 0], coeffs[r, 1], coeffs[r, 2], coeffs[r, 3], coeffs[r, 4], coeffs[r, 5]
+    else:
+        k0, k1, k2, k3, k4, k5 = _row_coefficients(params[gid[r]], cx, cy)
+    b1, b2, b3, b4, b5 = b[1], b[2], b[3], b[4], b[5]
+    for s in range(e.shape[0]):
+        e[s] = k0 + k1 * b1[s] + k2 * b2[s] + k3 * b3[s] + k4 * b4[s] + k5 * b5[s]
+
+
 @njit(**_JIT)
 def _forward(coeffs, params, centres, basis, feats, gid, offsets, order, valid, cutoff, gdepth, consts,
              out, crossing, before, stop, t_final):  # fmt: skip
@@ -107,16 +144,12 @@ def _forward(coeffs, params, centres, basis, feats, gid, offsets, order, valid, 
     writes ``out`` [T, D, S], ``crossing`` [T, S], ``before`` [T, S] (when ``cutoff`` is given),
     ``stop`` [T, S] (first dropped row relative to the tile's start, or its row count) and
     ``t_final`` [T, S] (T after the composited rows)."""
-    e_clamp, e_max, alpha_min, t_min, half, one, zero, scale = consts[:8]
-    c2, c3, c4, c5, c6, c7, c8, c9 = consts[8:16]
-    slots, d = basis.shape[2], feats.shape[1]
-    from_coeffs = coeffs.shape[0] > 0
+    ac, t_min, half, one, zero = _alpha_constants(consts), consts[3], consts[4], consts[5], consts[6]
+    slots, d, from_coeffs = basis.shape[2], feats.shape[1], coeffs.shape[0] > 0
     has_valid, has_cutoff = valid.shape[0] > 0, cutoff.shape[0] > 0
     for i in range(order.shape[0]):
         t = order[i]
-        b = basis[0] if basis.shape[0] == 1 else basis[t]
-        b1, b2, b3, b4, b5 = b[1], b[2], b[3], b[4], b[5]
-        cx, cy = (0.0, 0.0) if from_coeffs else (centres[t, 0], centres[t, 1])
+        b, cx, cy = _tile_basis(basis, centres, t, from_coeffs)
         start, end = offsets[t], offsets[t + 1]
         trans = np.empty(slots, feats.dtype)
         live = np.empty(slots, feats.dtype)
@@ -139,18 +172,11 @@ def _forward(coeffs, params, centres, basis, feats, gid, offsets, order, valid, 
         for r in range(start, end):
             if n_live == zero:
                 break
-            if from_coeffs:
-                k0, k1, k2, k3, k4, k5 = coeffs[r, 0], coeffs[r, 1], coeffs[r, 2], coeffs[r, 3], coeffs[r, 4], coeffs[r, 5]
-            else:
-                k0, k1, k2, k3, k4, k5 = _row_coefficients(params[gid[r]], cx, cy)
-            for s in range(slots):  # float64 polynomial, rounded once into e's dtype
-                e[s] = k0 + k1 * b1[s] + k2 * b2[s] + k3 * b3[s] + k4 * b4[s] + k5 * b5[s]
+            _row_exponents(e, r, b, coeffs, params, gid, cx, cy, from_coeffs)
             rank = one * (r - start)
             w_sum = zero
             for s in range(slots):
-                x = min(max(e[s], e_clamp), e_max)
-                al = _exp_neg(x, scale, one, c2, c3, c4, c5, c6, c7, c8, c9)
-                al = al * (one * (al >= alpha_min)) * live[s]
+                al = _alpha(e[s], ac) * live[s]
                 tr = trans[s]
                 t_next = tr * (one - al)
                 k = one * (t_next > t_min)  # 0 on the row that would drop T to <= 1e-4
@@ -244,18 +270,14 @@ def _backward(coeffs, params, centres, basis, feats, gid, offsets, order, valid,
     """Gradients of :func:`_forward`'s outputs for the tiles in ``order``: ``g_out`` [T, D, S]
     and ``g_before`` [T, S] (empty: none) give ``g_coeffs`` [I, 6] (coefficient mode) or add to
     ``g_params`` [G, 6] (parameter mode), and add to ``g_feats`` [G, D] (one buffer per thread,
-    summed by the caller). Rows are recovered back to front one by one and their products with the output
-    gradient taken ``_BATCH`` rows at a time (:func:`_rows_backward`)."""
-    e_clamp, e_max, alpha_min, t_min, half, one, zero, scale = consts[:8]
-    c2, c3, c4, c5, c6, c7, c8, c9 = consts[8:16]
-    slots, d = basis.shape[2], feats.shape[1]
-    from_coeffs = coeffs.shape[0] > 0
+    summed by the caller). Rows are recovered back to front one by one and their gradients taken
+    ``_BATCH`` rows at a time (:func:`_rows_backward`)."""
+    ac, e_clamp, one, zero = _alpha_constants(consts), consts[0], consts[5], consts[6]
+    slots, d, from_coeffs = basis.shape[2], feats.shape[1], coeffs.shape[0] > 0
     has_valid, has_cutoff = valid.shape[0] > 0, g_before.shape[0] > 0
     for i in range(order.shape[0]):
         t = order[i]
-        b = basis[0] if basis.shape[0] == 1 else basis[t]
-        b1, b2, b3, b4, b5 = b[1], b[2], b[3], b[4], b[5]
-        cx, cy = (0.0, 0.0) if from_coeffs else (centres[t, 0], centres[t, 1])
+        b, cx, cy = _tile_basis(basis, centres, t, from_coeffs)
         start = offsets[t]
         trans = np.empty(slots, feats.dtype)
         live = np.empty(slots, feats.dtype)
@@ -279,19 +301,12 @@ def _backward(coeffs, params, centres, basis, feats, gid, offsets, order, valid,
             last = max(last, stop[t, s])
         n = 0
         for r in range(start + np.int64(last) - 1, start - 1, -1):
-            if from_coeffs:
-                k0, k1, k2, k3, k4, k5 = coeffs[r, 0], coeffs[r, 1], coeffs[r, 2], coeffs[r, 3], coeffs[r, 4], coeffs[r, 5]
-            else:
-                k0, k1, k2, k3, k4, k5 = _row_coefficients(params[gid[r]], cx, cy)
-            for s in range(slots):
-                e[s] = k0 + k1 * b1[s] + k2 * b2[s] + k3 * b3[s] + k4 * b4[s] + k5 * b5[s]
+            _row_exponents(e, r, b, coeffs, params, gid, cx, cy, from_coeffs)
             rank = one * (r - start)
             w, a, om, m = w_rows[n], a_rows[n], om_rows[n], m_rows[n]
             w_sum = zero
             for s in range(slots):
-                x = min(max(e[s], e_clamp), e_max)
-                al = _exp_neg(x, scale, one, c2, c3, c4, c5, c6, c7, c8, c9)
-                al = al * (one * (al >= alpha_min)) * live[s] * (one * (rank < stop_t[s]))
+                al = _alpha(e[s], ac) * live[s] * (one * (rank < stop_t[s]))
                 one_minus = one - al
                 t_before = trans[s] / one_minus
                 trans[s] = t_before
