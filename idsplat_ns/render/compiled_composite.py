@@ -351,6 +351,7 @@ def use_compiled_compositor(compositor: str, feats: Tensor) -> bool:
 # loops: numba's OpenMP pool is a second OpenMP runtime beside torch's, and with both spinning,
 # two 1-thread trainings on 2 cores ran their camera steps 4x slower than one alone.
 _POOL: Optional[ThreadPoolExecutor] = None
+_POOL_WORKERS = 0
 _POOL_LOCK = threading.Lock()
 
 
@@ -362,14 +363,17 @@ def _run_split(kernel, order: np.ndarray, threads: int, per_part) -> None:
     """Run ``kernel(order=part, **per_part(k))`` on ``threads`` parts of ``order`` (dealt round-robin
     from the longest list down, so that the parts take about as long), the first part in this
     thread and the others in a shared pool of idle (blocked, not spinning) threads."""
-    global _POOL
+    global _POOL, _POOL_WORKERS
     parts = [order[k::threads] for k in range(threads)]
     if threads == 1:
         kernel(order=parts[0], **per_part(0))
         return
     with _POOL_LOCK:
-        if _POOL is None or _POOL._max_workers < threads - 1:
+        # A larger pool for more threads; the old one is not shut down (a call may still be
+        # submitting to it) and its idle workers exit once it is collected.
+        if _POOL_WORKERS < threads - 1:
             _POOL = ThreadPoolExecutor(max_workers=threads - 1, thread_name_prefix="idsplat-composite")
+            _POOL_WORKERS = threads - 1
         pool = _POOL
     futures = [pool.submit(kernel, order=parts[k], **per_part(k)) for k in range(1, threads)]
     kernel(order=parts[0], **per_part(0))
