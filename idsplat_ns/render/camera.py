@@ -10,9 +10,9 @@ import torch
 from torch import Tensor
 
 from ..errors import IDSplatError
+from .compiled_composite import CompiledGaussianComposite, use_compiled_compositor
 from .projection import Projection, project_gaussians
 from .rolling_shutter import CameraMotion
-from .compiled_composite import CompiledGaussianComposite, use_compiled_compositor
 from .tile_composite import CompositePlan, TileCoefficients, TileComposite, pixel_basis
 from .tiles import intersect_tiles, tiles_to_image
 
@@ -102,8 +102,8 @@ def rasterize_camera(
     ``tile_size``, ``chunk_elems`` (the torch compositor's block size; None: the device's
     default) and ``compositor`` (``"compiled"``: numba loops on CPU tensors, ``"torch"``: tensor
     ops on any device, ``"auto"``: compiled on the CPU) only trade speed against memory in the
-    torch backend; they never change the image beyond float rounding. ``return_instance_alpha`` adds the per-instance alpha maps (one channel per distinct
-    ID in ``instance_ids``). ``motion``: rolling shutter, each Gaussian drawn where it is when its
+    torch backend; they never change the image beyond float rounding. ``return_instance_alpha``
+    adds the per-instance alpha maps (one channel per distinct ID in ``instance_ids``). ``motion``: rolling shutter, each Gaussian drawn where it is when its
     line is exposed (:mod:`idsplat_ns.render.rolling_shutter`); None or a global timing renders
     every Gaussian at the camera's time.
     """
