@@ -17,6 +17,7 @@ import torch
 from idsplat_ns.errors import IDSplatError
 from idsplat_ns.render import rasterize_camera, rasterize_lidar
 from idsplat_ns.render import compiled_composite as cc
+from idsplat_ns.render.compositor import use_compiled_compositor
 
 
 def _camera_scene(dtype, n=400, seed=0):
@@ -131,8 +132,8 @@ def test_compositor_option_errors_name_the_option():
         rasterize_camera(*base, vm, Ks, 45, 33, backend="torch", compositor="bogus")
     feats16 = base[4].to(torch.float16)
     with pytest.raises(IDSplatError, match="compositor='compiled' runs on float32/float64 CPU tensors"):
-        cc.use_compiled_compositor("compiled", feats16)
-    assert not cc.use_compiled_compositor("auto", feats16) and cc.use_compiled_compositor("auto", base[4])
+        use_compiled_compositor("compiled", feats16)
+    assert not use_compiled_compositor("auto", feats16) and use_compiled_compositor("auto", base[4])
 
 
 def test_two_threads_composite_at_once_and_agree():
@@ -167,3 +168,20 @@ def test_image_is_the_same_for_any_thread_count():
         images.append(rasterize_camera(*base, vm, Ks, 45, 33, backend="torch", compositor="compiled").features)
     torch.set_num_threads(previous)
     assert all(torch.equal(image, images[0]) for image in images)
+
+
+def test_numba_is_loaded_only_when_the_compiled_loops_run(monkeypatch):
+    # CUDA runs never load numba; an environment without it (the GPU benches' --target install)
+    # gets the torch compositor under "auto" and a one-line error under "compiled".
+    import subprocess
+    import sys
+
+    code = "import sys, idsplat_ns.render, idsplat_ns.render.camera, idsplat_ns.render.lidar; print('numba' in sys.modules)"
+    assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip() == "False"
+    from idsplat_ns.render import compositor
+
+    monkeypatch.setattr(compositor, "numba_installed", lambda: False)
+    feats = torch.zeros(3, 2)
+    assert not compositor.use_compiled_compositor("auto", feats)
+    with pytest.raises(IDSplatError, match="compositor='compiled' needs numba"):
+        compositor.use_compiled_compositor("compiled", feats)

@@ -10,7 +10,7 @@ import torch
 from torch import Tensor
 
 from ..errors import IDSplatError
-from .compiled_composite import CompiledGaussianComposite, use_compiled_compositor
+from .compositor import use_compiled_compositor
 from .projection import Projection, project_gaussians
 from .rolling_shutter import CameraMotion
 from .tile_composite import CompositePlan, TileCoefficients, TileComposite, pixel_basis
@@ -179,6 +179,8 @@ def rasterize_projected(
         basis=pixel_basis(b, device, torch.float64), block_elems=chunk_elems,
     )  # fmt: skip
     if use_compiled_compositor(compositor, features):
+        from .compiled_composite import CompiledGaussianComposite  # numba only when it runs
+
         # Each row's coefficients are made inside the compiled loop from its Gaussian's
         # (mean, conic, log opacity), in float64 like quadratic_coefficients.
         per_gaussian = torch.cat(

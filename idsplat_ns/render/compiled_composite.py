@@ -41,7 +41,6 @@ import torch
 from numba import njit
 from torch import Tensor
 
-from ..errors import IDSplatError
 from .reference import ALPHA_MAX, ALPHA_MIN, TRANSMITTANCE_MIN
 
 _E_SKIP = -math.log(ALPHA_MIN)  # exponents above this give alpha < 1/255
@@ -328,23 +327,6 @@ def _backward(coeffs, params, centres, basis, feats, gid, offsets, order, valid,
         if n > 0:
             _rows_backward(n, go, gb, ct, b, cx, cy, rows, g_rows, w_rows, a_rows, om_rows, m_rows,
                            behind, feats, gdepth, params, has_cutoff, g_coeffs, g_params, g_feats, one, zero)  # fmt: skip
-
-
-COMPOSITORS = ("auto", "compiled", "torch")
-
-
-def use_compiled_compositor(compositor: str, feats: Tensor) -> bool:
-    """Whether ``compositor`` (one of :data:`COMPOSITORS`) means the compiled loops for ``feats``:
-    ``"auto"`` takes them for float CPU tensors, ``"compiled"`` insists on them."""
-    if compositor not in COMPOSITORS:
-        raise IDSplatError(f"compositor={compositor!r}: use one of {', '.join(COMPOSITORS)}")
-    usable = feats.device.type == "cpu" and feats.dtype in (torch.float32, torch.float64)
-    if compositor == "compiled" and not usable:
-        raise IDSplatError(
-            f"compositor='compiled' runs on float32/float64 CPU tensors, not {feats.dtype} on {feats.device}; "
-            "use compositor='torch' or 'auto'"
-        )
-    return compositor != "torch" and usable
 
 
 # Threads are Python threads running the kernels with the GIL released, not numba's parallel

@@ -28,7 +28,7 @@ import torch
 from torch import Tensor
 
 from ..errors import IDSplatError
-from .compiled_composite import CompiledTileComposite, use_compiled_compositor
+from .compositor import use_compiled_compositor
 from .projection import covariance_3d
 from .reference import ALPHA_MIN
 from .tile_composite import (
@@ -434,8 +434,12 @@ def rasterize_lidar(
         slot_valid=slot_valid, block_elems=chunk_elems,
         cutoff_depths=cutoff, gaussian_depths=None if cutoff is None else flat_range.detach(),
     )  # fmt: skip
-    composite = CompiledTileComposite if use_compiled_compositor(compositor, feats) else TileComposite
-    composited = composite.apply(coeffs, feats, plan)
+    if use_compiled_compositor(compositor, feats):
+        from .compiled_composite import CompiledTileComposite  # numba only when it runs
+
+        composited = CompiledTileComposite.apply(coeffs, feats, plan)
+    else:
+        composited = TileComposite.apply(coeffs, feats, plan)
     pix, crossing = composited[0], composited[1]
     flat_slot = ray_sub * slots + slot
     before_cutoff = composited[2].reshape(-1)[flat_slot][:, None] if cutoff is not None else None
