@@ -213,6 +213,7 @@ def main() -> None:
     ap.add_argument("--tile-size", type=int, default=8)
     ap.add_argument("--scene", choices=("garden", "street"), default="garden")
     ap.add_argument("--street-points", type=int, default=80000, help="Gaussians of the street scene (about)")
+    # Written out, not imported from idsplat_ns.render.compositor: children run older engines too.
     ap.add_argument("--compositor", choices=("auto", "compiled", "torch"), default="auto",
                     help="tile compositor (auto: compiled on the CPU)")
     ap.add_argument("--against", default=None, help="git revision to time beside the working tree")

@@ -14,7 +14,7 @@ from .compositor import use_compiled_compositor
 from .projection import Projection, project_gaussians
 from .rolling_shutter import CameraMotion
 from .tile_composite import CompositePlan, TileCoefficients, TileComposite, pixel_basis
-from .tiles import intersect_tiles, tiles_to_image
+from .tiles import intersect_tiles, tile_centres, tiles_to_image
 
 
 @dataclass
@@ -187,14 +187,12 @@ def rasterize_projected(
             [proj.means2d.reshape(-1, 2).double(), proj.conics.reshape(-1, 3).double(),
              opacities.double().clamp_min(1e-30).log().repeat(cams)[:, None]], dim=1,
         )  # fmt: skip  # [C*N, 6]
-        local = torch.arange(isects.num_tiles, device=device) % (isects.tiles_x * isects.tiles_y)
-        centres = torch.stack([local % isects.tiles_x, torch.div(local, isects.tiles_x, rounding_mode="floor")], 1)
-        pix, crossing = CompiledGaussianComposite.apply(per_gaussian, feats, plan, centres.double() * b + 0.5 * b)
+        all_tiles = torch.arange(isects.num_tiles, device=device)
+        centres = torch.stack(tile_centres(all_tiles, isects.tiles_x, isects.tiles_y, b), 1)  # [T, 2]
+        pix, crossing = CompiledGaussianComposite.apply(per_gaussian, feats, plan, centres)
     else:
         # Per intersection: the exponent's coefficients in the pixel offset from the tile centre.
-        local = isects.tile_ids % (isects.tiles_x * isects.tiles_y)
-        cx = ((local % isects.tiles_x) * b).double() + 0.5 * b
-        cy = (torch.div(local, isects.tiles_x, rounding_mode="floor") * b).double() + 0.5 * b
+        cx, cy = tile_centres(isects.tile_ids, isects.tiles_x, isects.tiles_y, b)
         # One gather of (mean, conic, opacity) per intersection: index_select's backward is a
         # single index_add, far cheaper on CPU than three advanced-indexing backward passes. The
         # float64 coefficients come from a Function whose gradient is one [I, 6] tensor in the

@@ -219,7 +219,7 @@ def _forward(coeffs, params, centres, basis, feats, gid, offsets, order, valid, 
 
 
 @njit(fastmath=_FAST, error_model="numpy", cache=True)
-def _rows_backward(n, go, gb, ct, b, cx, cy, rows, g_rows, w_rows, a_rows, om_rows, m_rows, behind,
+def _rows_backward(n, go, gb, ct, b, cx, cy, rows, g_rows, w_rows, a_rows, m_rows, behind,
                    feats, gdepth, params, has_cutoff, g_coeffs, g_params, g_feats, one, zero):  # fmt: skip
     """Gradients of a batch of ``n`` rows of one tile, collected back to front: ``go`` [D, S]
     the tile's output gradient, ``behind`` [S] (float64) the sum of ``g w`` behind the batch,
@@ -229,7 +229,7 @@ def _rows_backward(n, go, gb, ct, b, cx, cy, rows, g_rows, w_rows, a_rows, om_ro
     gw = np.empty(go.shape[1], go.dtype)
     for q in range(n):
         g = g_rows[q]
-        w, a, om, m = w_rows[q], a_rows[q], om_rows[q], m_rows[q]
+        w, a, m = w_rows[q], a_rows[q], m_rows[q]
         gfe = g_feats[g]
         for s in range(w.shape[0]):
             gw[s] = zero
@@ -244,7 +244,7 @@ def _rows_backward(n, go, gb, ct, b, cx, cy, rows, g_rows, w_rows, a_rows, om_ro
         q0 = q1 = q2 = q3 = q4 = q5 = 0.0
         for s in range(w.shape[0]):
             gws = gw[s] * w[s]
-            ps = behind[s] * (a[s] / om[s]) - gws
+            ps = behind[s] * (a[s] / (one - a[s])) - gws
             if has_cutoff:  # line of sight: dL/dalpha += g on rows in front of the cut-off
                 ps -= a[s] * gb[s] * (one * (dg < ct[s])) * (one * (w[s] > zero))
             ps = ps * m[s]
@@ -284,7 +284,6 @@ def _backward(coeffs, params, centres, basis, feats, gid, offsets, order, valid,
         e = np.empty(slots, feats.dtype)
         w_rows = np.empty((_BATCH, slots), feats.dtype)
         a_rows = np.empty((_BATCH, slots), feats.dtype)
-        om_rows = np.empty((_BATCH, slots), feats.dtype)
         m_rows = np.empty((_BATCH, slots), feats.dtype)
         g_rows = np.empty(_BATCH, np.int64)
         rows = np.empty(_BATCH, np.int64)
@@ -302,15 +301,13 @@ def _backward(coeffs, params, centres, basis, feats, gid, offsets, order, valid,
         for r in range(start + np.int64(last) - 1, start - 1, -1):
             _row_exponents(e, r, b, coeffs, params, gid, cx, cy, from_coeffs)
             rank = one * (r - start)
-            w, a, om, m = w_rows[n], a_rows[n], om_rows[n], m_rows[n]
+            w, a, m = w_rows[n], a_rows[n], m_rows[n]
             w_sum = zero
             for s in range(slots):
                 al = _alpha(e[s], ac) * live[s] * (one * (rank < stop_t[s]))
-                one_minus = one - al
-                t_before = trans[s] / one_minus
+                t_before = trans[s] / (one - al)
                 trans[s] = t_before
                 a[s] = al
-                om[s] = one_minus
                 # No gradient where alpha is zero or at the 0.999 clamp.
                 m[s] = (one * (e[s] > e_clamp)) * (one * (al > zero))
                 ws = al * t_before
@@ -321,11 +318,11 @@ def _backward(coeffs, params, centres, basis, feats, gid, offsets, order, valid,
             g_rows[n], rows[n] = gid[r], r
             n += 1
             if n == _BATCH:
-                _rows_backward(n, go, gb, ct, b, cx, cy, rows, g_rows, w_rows, a_rows, om_rows, m_rows,
+                _rows_backward(n, go, gb, ct, b, cx, cy, rows, g_rows, w_rows, a_rows, m_rows,
                                behind, feats, gdepth, params, has_cutoff, g_coeffs, g_params, g_feats, one, zero)  # fmt: skip
                 n = 0
         if n > 0:
-            _rows_backward(n, go, gb, ct, b, cx, cy, rows, g_rows, w_rows, a_rows, om_rows, m_rows,
+            _rows_backward(n, go, gb, ct, b, cx, cy, rows, g_rows, w_rows, a_rows, m_rows,
                            behind, feats, gdepth, params, has_cutoff, g_coeffs, g_params, g_feats, one, zero)  # fmt: skip
 
 
@@ -415,14 +412,13 @@ def _composite_backward(ctx, grad_out: Tensor, grad_before_cutoff: tuple):
     if ctx.has_cutoff and grad_before_cutoff and grad_before_cutoff[0] is not None:
         g_before = _array(grad_before_cutoff[0].reshape(n_tiles, slots), grad_out.dtype)
     g_coeffs = np.zeros_like(arrays["coeffs"])
-    g_params = np.zeros((threads if arrays["params"].shape[0] else 1,) + arrays["params"].shape)
+    g_params = np.zeros((threads,) + arrays["params"].shape)  # [threads, 0, 6] in coefficient mode
     g_feats = np.zeros((threads,) + feats.shape, feats.dtype)
     shared = dict(arrays, stop=ctx.stop, t_final=ctx.t_final, g_out=g_out, g_before=g_before, g_coeffs=g_coeffs)
     # A row belongs to one tile (its coefficient gradient has one writer); a Gaussian's parameter
     # and feature gradients gather from many tiles, so each thread has buffers of its own.
-    _run_split(_backward, ctx.order, threads,
-               lambda k: dict(shared, g_params=g_params[k if g_params.shape[0] > 1 else 0], g_feats=g_feats[k]))  # fmt: skip
-    return g_coeffs, g_params.sum(0), torch.from_numpy(g_feats.sum(0) if threads > 1 else g_feats[0])
+    _run_split(_backward, ctx.order, threads, lambda k: dict(shared, g_params=g_params[k], g_feats=g_feats[k]))
+    return g_coeffs, g_params.sum(0), torch.from_numpy(g_feats.sum(0))
 
 
 def _no_params(dtype=np.float64) -> np.ndarray:

@@ -34,7 +34,7 @@ from .reference import ALPHA_MIN
 from .tile_composite import (
     CompositePlan, TileComposite, monomial_basis, quadratic_coefficients,
 )  # fmt: skip
-from .tiles import intersect_tiles
+from .tiles import intersect_tiles, tile_centres
 
 
 @dataclass
@@ -401,10 +401,8 @@ def rasterize_lidar(
     slot = rank % slots
     num_sub = sub_offsets.numel() - 1
     # Sample offsets from the tile centre (0 for padding slots, which are masked out).
-    tile_local = torch.arange(num_tiles, device=device) % (tiles_x * tiles_y)
     f64 = torch.float64
-    tile_cx = (tile_local % tiles_x).to(f64) * tile_size + 0.5 * tile_size
-    tile_cy = torch.div(tile_local, tiles_x, rounding_mode="floor").to(f64) * tile_size + 0.5 * tile_size
+    tile_cx, tile_cy = tile_centres(torch.arange(num_tiles, device=device), tiles_x, tiles_y, tile_size)
     ex = torch.zeros(num_sub, slots, device=device, dtype=f64)
     ey = torch.zeros(num_sub, slots, device=device, dtype=f64)
     slot_valid = torch.zeros(num_sub, slots, device=device, dtype=dtype)

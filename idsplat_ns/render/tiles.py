@@ -159,6 +159,19 @@ def intersect_tiles(
     )
 
 
+def tile_centres(
+    tile_ids: Tensor,  # [M] int64 global tile index (camera or time bin major)
+    tiles_x: int,
+    tiles_y: int,
+    tile_size: int,
+) -> tuple[Tensor, Tensor]:
+    """Centres (x, y) [M] float64, in pixels (or grid cells), of the tiles ``tile_ids``."""
+    local = tile_ids % (tiles_x * tiles_y)
+    col = (local % tiles_x).double()
+    row = torch.div(local, tiles_x, rounding_mode="floor").double()
+    return col * tile_size + 0.5 * tile_size, row * tile_size + 0.5 * tile_size
+
+
 def tiles_to_image(x: Tensor, isects: TileIntersections, width: int, height: int) -> Tensor:
     """[T*B*B, D] tile-pixel rows (tile-major, row-major inside a tile) to [C, H, W, D] images."""
     b = isects.tile_size
