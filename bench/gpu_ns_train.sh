@@ -11,8 +11,10 @@
 # gsplat's CUDA code is compiled while the street is generated. The run saves a checkpoint every
 # 500 steps (SAVE_EVERY); when TRAIN_SECONDS have passed it is stopped (SIGINT) and the last checkpoint is
 # evaluated. OUT receives train.log, eval.json, gpu_memory.csv and summary.json.
-# LIDAR_AGAINST=DIR (a source tree of another revision, see bench/bench_lidar_render.py) first times
-# a training lidar batch of both beside each other (lidar_render.md).
+# LIDAR_AGAINST=DIR (a source tree of another revision, see bench/bench_lidar_render.py) times a
+# training lidar batch of both beside each other (lidar_render.md) while gsplat builds (it needs no
+# gsplat; the build then leaves two cores to it). GPU_TESTS=1 runs gsplat's parity tests once it is
+# built (pytest.log).
 set -u
 OUT=${1:?usage: bench/gpu_ns_train.sh OUT [TRAIN_SECONDS] [PRESET] [SEED] [MODE] [ns-train args...]}
 SECS=${2:-300}
@@ -41,7 +43,8 @@ stamp "installed"
 $PY -c "import method_configs.idsplat, nerfstudio.scripts.train, nerfstudio.scripts.eval" || exit 1
 
 if $PY -c 'import torch, sys; sys.exit(0 if torch.cuda.is_available() else 1)'; then
-    export MAX_JOBS=${MAX_JOBS:-$(nproc)} TORCH_CUDA_ARCH_LIST=${TORCH_CUDA_ARCH_LIST:-9.0}
+    JOBS=$(nproc); [ -n "${LIDAR_AGAINST:-}" ] && JOBS=$(( JOBS > 4 ? JOBS - 2 : JOBS ))
+    export MAX_JOBS=${MAX_JOBS:-$JOBS} TORCH_CUDA_ARCH_LIST=${TORCH_CUDA_ARCH_LIST:-9.0}
     $PY -c "from gsplat.cuda._backend import _C; print('gsplat compiled:', _C is not None)" >"$OUT/gsplat_build.log" 2>&1 &
     BUILD=$!
     (while sleep 2; do nvidia-smi --query-gpu=memory.used --format=csv,noheader,nounits; done) >"$OUT/gpu_memory.csv" 2>/dev/null &
@@ -52,15 +55,19 @@ export IDSPLAT_CACHE=${IDSPLAT_CACHE:-/tmp/idsplat_cache}
 $PY -m idsplat_ns.data.synthetic.cli --preset "$PRESET" --seed "$SEED" --out "$IDSPLAT_CACHE/synthetic" \
     --workers "$(nproc)" --quiet || exit 1
 stamp "street $PRESET $SEED generated"
+if [ -n "${LIDAR_AGAINST:-}" ]; then  # a source tree of another revision: time its lidar batch beside this one
+    $PY bench/bench_lidar_render.py --method idsplat --preset "$PRESET" --seed "$SEED" --threads 2 \
+        --rounds "${LIDAR_ROUNDS:-2}" --batches "${LIDAR_BATCHES:-6}" \
+        --against-tree "$LIDAR_AGAINST" --out "$OUT/lidar_render.md" >"$OUT/lidar_render.log" 2>&1
+    stamp "lidar batch bench ended with $?"
+fi
 if [ -n "${BUILD:-}" ]; then
     wait "$BUILD" || { stamp "gsplat build failed"; tail -30 "$OUT/gsplat_build.log"; exit 1; }
     stamp "$(tail -1 "$OUT/gsplat_build.log")"
 fi
-
-if [ -n "${LIDAR_AGAINST:-}" ]; then  # a source tree of another revision: time its lidar batch beside this one
-    $PY bench/bench_lidar_render.py --method idsplat --preset "$PRESET" --seed "$SEED" --threads "$(nproc)" \
-        --against-tree "$LIDAR_AGAINST" --out "$OUT/lidar_render.md" >"$OUT/lidar_render.log" 2>&1
-    stamp "lidar batch bench ended with $?"
+if [ "${GPU_TESTS:-0}" = 1 ]; then
+    $PY -m pytest -q -p no:cacheprovider tests/test_render_gsplat.py >"$OUT/pytest.log" 2>&1
+    stamp "gsplat parity tests ended with $? ($(tail -1 "$OUT/pytest.log"))"
 fi
 
 RUN=/tmp/idsplat_runs
