@@ -67,6 +67,21 @@ def test_compose_moves_instances_keeps_static_and_drops_absent():
     assert torch.equal(mw2, mw[[0, 1, 2, 4, 6]])
 
 
+def test_compose_without_dropping_keeps_every_row_and_marks_the_absent():
+    means, quats, ids, R, t, traj_ids = _scene()
+    for present in ([True, True, True], [False, True, True], [False, False, False]):
+        present = torch.tensor(present)
+        mw, qw, keep = compose_gaussians(means, quats, ids, R, t, present, traj_ids)
+        all_w, all_q, all_keep = compose_gaussians(means, quats, ids, R, t, present, traj_ids, drop=False)
+        assert all_w.shape == means.shape and all_q.shape == quats.shape
+        assert torch.equal(all_keep, keep)
+        assert torch.equal(all_w[keep], mw) and torch.equal(all_q[keep], qw)
+        assert torch.isfinite(all_w).all() and torch.isfinite(all_q).all()
+    # Without any trajectory every instance row is marked, none moved.
+    all_w, _, all_keep = compose_gaussians(means, quats, ids, R[:0], t[:0], present[:0], traj_ids[:0], drop=False)
+    assert all_keep.tolist() == (ids == 0).tolist() and torch.equal(all_w, means)
+
+
 def test_compose_without_instances_is_identity():
     means, quats, _, _, _, _ = _scene()
     ids = torch.zeros(9, dtype=torch.int64)

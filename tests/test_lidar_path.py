@@ -207,6 +207,60 @@ def test_time_bins_in_one_call_equal_each_bin_rendered_alone():
         torch.testing.assert_close(x, y, atol=2e-3 * float(y.abs().max()), rtol=0)
 
 
+@pytest.mark.parametrize("car_everywhere", [True, False])
+def test_scene_model_poses_a_batch_like_activating_and_gathering_per_bin(car_everywhere):
+    # SceneModel.render_lidar activates the Gaussians once for all time bins and skips the
+    # gathers when every instance is present; against a poser that activates, composes and
+    # gathers per bin (with the car present throughout, or gone after 0.05 s), values and the
+    # gradients of every parameter group agree.
+    from idsplat_ns.model.composition import compose_gaussians
+    from idsplat_ns.model.gaussians import GaussianSet
+    from idsplat_ns.model.scene_model import DecoderConfig, SceneModel
+    from idsplat_ns.model.trajectories import InstanceTrajectories
+
+    wall, car = _wall(20.0, step=0.25), _wall(0.0, half_y=1.0, half_z=0.8, step=0.25)
+    g = GaussianSet(wall.shape[0] + car.shape[0])
+    gen = torch.Generator().manual_seed(3)
+    with torch.no_grad():
+        g.means.copy_(torch.cat([wall, car]))
+        g.scales.copy_(torch.empty(g.scales.shape).uniform_(math.log(0.05), math.log(0.2), generator=gen))
+        g.quats.copy_(torch.randn(g.quats.shape, generator=gen))  # anisotropic: rotations get a gradient
+        g.opacities.fill_(2.0)
+        g.features.copy_(torch.rand(g.features.shape, generator=gen))
+        g.instance_ids[wall.shape[0]:] = 1
+    frame_times = np.array([0.0, 0.05, 0.1])
+    poses = np.tile(np.eye(4), (1, 3, 1, 1))
+    poses[0, :, 0, 3] = 12.0  # the car's canonical frame at x = 12 m, moving along y
+    poses[0, :, 1, 3] = 20.0 * frame_times
+    present = np.array([[True, True, car_everywhere]])
+    traj = InstanceTrajectories(frame_times, np.array([1]), poses, present, refine=False)
+    sm = SceneModel(g, 1, DecoderConfig(), traj, lidar_head_hidden=16)
+
+    def per_bin(t: float) -> dict:
+        a = g.activated()
+        R, tr, here = traj.poses_at(t)
+        means, quats, keep = compose_gaussians(a["means"], a["quats"], g.instance_ids, R, tr, here, traj.instance_ids)
+        return {k: v[keep] for k, v in a.items()} | {"means": means, "quats": quats}
+
+    n = 400
+    rng = np.random.default_rng(5)
+    times = np.sort(rng.uniform(0.0, 0.1, n))
+    sweep = _sweep(np.zeros((n, 3)), _dirs(rng.uniform(-10, 10, n), rng.uniform(-4, 4, n)), times)
+    rays = sample_rays(sweep, n)
+    pose = torch.tensor(sweep.sensor_to_world, dtype=torch.float32)
+    batch, _ = sm.render_lidar(rays, pose, num_time_bins=4)
+    ref = render_lidar_rays(per_bin, rays, pose, num_time_bins=4)
+    hits_car = (ref.range[:, 0] > 0) & (ref.range[:, 0] < 15.0)
+    assert hits_car.any() and (ref.range[:, 0] > 15.0).any()
+    for name in ("features", "alpha", "range", "median_range"):
+        torch.testing.assert_close(getattr(batch, name), getattr(ref, name))
+    params = [g.means, g.scales, g.quats, g.opacities, g.features]
+    loss = lambda out: out.features.square().sum() + (out.range * out.alpha).sum()  # noqa: E731
+    for x, y in zip(torch.autograd.grad(loss(batch), params), torch.autograd.grad(loss(ref), params)):
+        assert y.abs().sum() > 0
+        torch.testing.assert_close(x, y, atol=1e-5 * float(y.abs().max()), rtol=1e-5)
+
+
 def test_each_bin_stacks_only_the_gaussians_its_rays_may_reach(monkeypatch):
     # A spinning sweep: the first half of the rays looks forward (azimuth near 0), the second half
     # backward (near 180). Walls in front and behind: each bin is given only its own wall.

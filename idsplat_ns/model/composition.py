@@ -77,32 +77,44 @@ def compose_gaussians(
     traj_t: Tensor,  # [Z, 3] translation
     present: Tensor,  # [Z] bool, instance exists at the render time
     traj_ids: Tensor,  # [Z] int instance ID of each trajectory row
+    drop: bool = True,
 ) -> tuple[Tensor, Tensor, Tensor]:
     """World means [M, 3] and quaternions [M, 4] of the Gaussians to render, and ``keep`` [N] bool.
 
     Rows of the outputs are the kept Gaussians in their original order (``means[keep]`` order),
     so other per-Gaussian tensors are selected with the same ``keep``. Static Gaussians pass
     unchanged; instance Gaussians are moved by their instance's pose; Gaussians of absent
-    instances, or with an ID that has no trajectory, are dropped.
+    instances, or with an ID that has no trajectory, are dropped. ``drop=False`` keeps every row
+    (M = N; the ones ``keep`` marks False hold finite placeholder poses): for a caller that
+    hides them by their opacity instead of gathering every per-Gaussian tensor.
     """
-    row = trajectory_index(instance_ids, traj_ids)  # [N]
-    dynamic = instance_ids.long() > 0
-    # Row -1 (background, unknown ID) reads the appended False: safe also when Z == 0.
+    n = means.shape[0]
+    # Only the instance Gaussians (a few percent of a street) are indexed: no [N]-row gathers
+    # unless something is dropped, which is what posing a lidar batch bin by bin costs.
+    dyn = torch.nonzero(instance_ids > 0).squeeze(-1)  # [M]
+    keep = torch.ones(n, dtype=torch.bool, device=means.device)
+    if dyn.numel() == 0:
+        return means, quats, keep
+    row = trajectory_index(instance_ids.index_select(0, dyn), traj_ids)  # [M], -1: no trajectory
+    # Row -1 (an ID without a trajectory) reads the appended False: safe also when Z == 0.
     present_pad = torch.cat([present.to(device=means.device, dtype=torch.bool),
                              torch.zeros(1, dtype=torch.bool, device=means.device)])
-    row_present = present_pad[row]
-    keep = ~dynamic | row_present
-    means_k, quats_k, row_k = means[keep], quats[keep], row[keep]
-    dyn = torch.nonzero(row_k >= 0).squeeze(-1)  # kept instance Gaussians, positions in the output
-    if dyn.numel() == 0:
-        return means_k, quats_k, keep
-    r = row_k[dyn]
+    here = present_pad[row]  # [M]
+    r = row.clamp_min(0)  # absent or unknown rows are posed with row 0's pose, then dropped
+    if traj_R.shape[0] == 0:  # no trajectory at all: every instance Gaussian is dropped
+        keep[dyn] = False
+        return (means[keep], quats[keep], keep) if drop else (means, quats, keep)
     R, t = traj_R[r], traj_t[r]  # one pose per instance Gaussian (only those, not all N)
-    moved_means = canonical_to_world(means_k[dyn], R, t)
+    moved_means = canonical_to_world(means.index_select(0, dyn), R, t)
     # q(R) once per trajectory, then gathered: cheaper than converting N matrices.
-    moved_quats = quat_multiply(rotmat_to_quat(traj_R)[r], quats_k[dyn])
-    means_w = means_k.index_put((dyn,), moved_means)
-    quats_w = quats_k.index_put((dyn,), moved_quats)
+    moved_quats = quat_multiply(rotmat_to_quat(traj_R)[r], quats.index_select(0, dyn))
+    means_w = means.index_put((dyn,), moved_means)
+    quats_w = quats.index_put((dyn,), moved_quats)
+    if bool(here.all()):
+        return means_w, quats_w, keep
+    keep[dyn] = here
+    if drop:
+        means_w, quats_w = means_w[keep], quats_w[keep]
     return means_w, quats_w, keep
 
 

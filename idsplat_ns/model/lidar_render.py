@@ -190,8 +190,8 @@ def render_lidar_rays(
         if b not in posed_cache:  # the Gaussians are posed once per time bin, shared by the lidars
             posed_cache[b] = posed_at(float(centres[b]))
         posed = posed_cache[b]
-        # Seen from the first group's position, the group's Gaussians sit moved by this offset.
-        posed = dict(posed, means=posed["means"] + (origins[0] - origins[g]).to(posed["means"].dtype))
+        if g > 0:  # seen from the first group's position, the group's Gaussians sit moved by this offset
+            posed = dict(posed, means=posed["means"] + (origins[0] - origins[g]).to(posed["means"].dtype))
         if margin is not None and posed["means"].shape[0]:
             # Only what the group's rays may reach is stacked (a time bin is a sector of a sweep):
             # memory in proportion to the Gaussians seen, not to groups x all Gaussians.

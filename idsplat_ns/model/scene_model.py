@@ -21,6 +21,7 @@ pixel's world-frame ray direction.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Optional, Sequence
 
@@ -128,11 +129,18 @@ class SceneModel(nn.Module):
         weight = self.sensor_embedding.weight
         return weight[row : row + 1] if row >= 0 else weight.new_zeros(1, weight.shape[1])
 
-    def posed_gaussians(self, time: Optional[float | Tensor], with_velocities: bool = False) -> dict[str, Tensor]:
+    def posed_gaussians(
+        self, time: Optional[float | Tensor], with_velocities: bool = False, activated: Optional[dict] = None,
+        drop_absent: bool = True,
+    ) -> dict[str, Tensor]:
         """Activated Gaussians in the world at ``time`` (seconds); absent instances removed.
         ``with_velocities`` adds ``velocities`` [M, 3], the world-frame velocity of each mean
-        (zero for the background), when instances move; a static scene has none."""
-        g = self.gaussians.activated()
+        (zero for the background), when instances move; a static scene has none. ``activated``:
+        :meth:`GaussianSet.activated`'s output when the caller poses several times (a lidar batch's
+        time bins), so that the activations are computed and differentiated once.
+        ``drop_absent=False`` keeps absent instances' Gaussians with opacity 0 instead of removing
+        them (no [N]-row gathers; for renderers that drop transparent Gaussians, as the lidar's do)."""
+        g = self.gaussians.activated() if activated is None else activated
         ids = self.gaussians.instance_ids
         if self.trajectories is None:  # a static scene: nothing to pose or drop
             return g | {"instance_ids": ids}
@@ -149,9 +157,15 @@ class SceneModel(nn.Module):
         canonical = g["means"]
         if self.deformation is not None:
             canonical = canonical + self.deformation.offsets(canonical, ids, time)
-        means, quats, keep = compose_gaussians(canonical, g["quats"], ids, R, t, present, traj_ids)
-        out = {k: v[keep] for k, v in g.items() if k not in ("means", "quats")}
-        out = out | {"means": means, "quats": quats, "instance_ids": ids[keep]}
+        means, quats, keep = compose_gaussians(canonical, g["quats"], ids, R, t, present, traj_ids, drop=drop_absent)
+        if bool(keep.all()):  # every instance present: no [N, D] gathers (nor their backward)
+            out = {k: v for k, v in g.items() if k not in ("means", "quats")} | {"instance_ids": ids}
+        elif not drop_absent:  # absent instances stay, transparent
+            out = {k: v for k, v in g.items() if k not in ("means", "quats")} | {"instance_ids": ids}
+            out["opacities"] = g["opacities"] * keep
+        else:
+            out = {k: v[keep] for k, v in g.items() if k not in ("means", "quats")} | {"instance_ids": ids[keep]}
+        out = out | {"means": means, "quats": quats}
         if with_velocities:
             out["velocities"] = gaussian_velocities(means, ids[keep], t, linear, angular, traj_ids)
         return out
@@ -202,8 +216,11 @@ class SceneModel(nn.Module):
         intensity and ray drop with the lidar head (see :func:`render_lidar_rays`)."""
         if self.lidar_head is None:
             raise RuntimeError("SceneModel.render_lidar: this model has no lidar head (a camera-only scene)")
-        render = render_lidar_rays(self.posed_gaussians, rays, sensor_to_world, num_time_bins,
-                                   cutoff_ranges=cutoff_ranges, **rasterizer_kwargs)  # fmt: skip
+        # Activated once for all the time bins; an absent instance is transparent in a bin rather
+        # than gathered out of every per-Gaussian tensor (the rasterizer drops opacity 0).
+        posed_at = functools.partial(self.posed_gaussians, activated=self.gaussians.activated(), drop_absent=False)
+        render = render_lidar_rays(posed_at, rays, sensor_to_world, num_time_bins, cutoff_ranges=cutoff_ranges,
+                                   **rasterizer_kwargs)  # fmt: skip
         return render, self.lidar_head(render.features)
 
 
