@@ -254,6 +254,15 @@ def test_scene_model_poses_a_batch_like_activating_and_gathering_per_bin(car_eve
     assert hits_car.any() and (ref.range[:, 0] > 15.0).any()
     for name in ("features", "alpha", "range", "median_range"):
         torch.testing.assert_close(getattr(batch, name), getattr(ref, name))
+    # Transparent rows keep every per-Gaussian tensor row-aligned, velocities too (zero where absent).
+    posed = sm.posed_gaussians(0.09, with_velocities=True, drop_absent=False)
+    car_rows = g.instance_ids == 1
+    assert posed["velocities"].shape == posed["means"].shape == g.means.shape
+    assert torch.equal(posed["opacities"][car_rows] == 0, torch.full((int(car_rows.sum()),), not car_everywhere))
+    if not car_everywhere:
+        assert torch.equal(posed["velocities"][car_rows], torch.zeros(int(car_rows.sum()), 3))
+    else:
+        assert torch.allclose(posed["velocities"][car_rows], torch.tensor([0.0, 20.0, 0.0]).expand(int(car_rows.sum()), 3))
     params = [g.means, g.scales, g.quats, g.opacities, g.features]
     loss = lambda out: out.features.square().sum() + (out.range * out.alpha).sum()  # noqa: E731
     for x, y in zip(torch.autograd.grad(loss(batch), params), torch.autograd.grad(loss(ref), params)):

@@ -139,7 +139,8 @@ class SceneModel(nn.Module):
         :meth:`GaussianSet.activated`'s output when the caller poses several times (a lidar batch's
         time bins), so that the activations are computed and differentiated once.
         ``drop_absent=False`` keeps absent instances' Gaussians with opacity 0 instead of removing
-        them (no [N]-row gathers; for renderers that drop transparent Gaussians, as the lidar's do)."""
+        them (no [N]-row gathers; for renderers that drop transparent Gaussians, as the lidar's do:
+        a camera render gained nothing measurable from it at 80,000 Gaussians)."""
         g = self.gaussians.activated() if activated is None else activated
         ids = self.gaussians.instance_ids
         if self.trajectories is None:  # a static scene: nothing to pose or drop
@@ -167,7 +168,9 @@ class SceneModel(nn.Module):
             out = {k: v[keep] for k, v in g.items() if k not in ("means", "quats")} | {"instance_ids": ids[keep]}
         out = out | {"means": means, "quats": quats}
         if with_velocities:
-            out["velocities"] = gaussian_velocities(means, ids[keep], t, linear, angular, traj_ids)
+            velocities = gaussian_velocities(means, out["instance_ids"], t, linear, angular, traj_ids)
+            # Transparent rows of absent instances move with no velocity (their pose is a placeholder).
+            out["velocities"] = velocities if drop_absent else velocities * keep[:, None]
         return out
 
     def render_camera(
