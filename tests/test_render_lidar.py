@@ -91,6 +91,41 @@ def _dense_lidar(means, quats, scales, opac, feats, az, el, az_res, el_res):
     return w @ feats[order], w.sum(1, keepdim=True), w @ proj.ranges[0][order][:, None]
 
 
+def test_spherical_covariance_is_the_autograd_jacobian_sandwich():
+    # The projected covariance against J S J^T + eps2d, J the autograd Jacobian of the world point's
+    # (u, v) (an independent reference, no closed form shared), with a turned and moved sensor; then
+    # gradcheck of the conics and covariances w.r.t. means and (non-symmetric) covariances, float64.
+    f64 = torch.float64
+    g = torch.Generator().manual_seed(7)
+    n = 16
+    means = torch.randn(n, 3, generator=g, dtype=f64) * 6 + torch.tensor([4.0, -3.0, 1.0], dtype=f64)
+    a = torch.randn(n, 3, 3, generator=g, dtype=f64) * 0.3
+    covars = a @ a.transpose(1, 2)
+    q = torch.linalg.qr(torch.randn(3, 3, generator=g, dtype=f64))[0]
+    pose = torch.eye(4, dtype=f64)
+    pose[:3, :3] = q * torch.sign(torch.linalg.det(q))
+    pose[:3, 3] = torch.tensor([1.0, 2.0, -0.5], dtype=f64)
+    az_res, el_res, el_min, eps = math.radians(0.2), math.radians(0.3), math.radians(-60.0), 0.3
+    proj = project_spherical(means[None], covars[None], pose[None], az_res, el_res, el_min, 400, eps2d=eps)
+
+    def uv(p):
+        s = pose[:3, :3] @ p + pose[:3, 3]
+        return torch.stack([torch.atan2(s[1], s[0]) / az_res, (torch.atan2(s[2], torch.hypot(s[0], s[1])) - el_min) / el_res])
+
+    for i in range(n):
+        jac = torch.autograd.functional.jacobian(uv, means[i])
+        c = jac @ covars[i] @ jac.T
+        expect = torch.stack([c[0, 0] + eps, c[0, 1], c[1, 1] + eps])
+        torch.testing.assert_close(proj.covars2d[0, i], expect, rtol=1e-10, atol=1e-10)
+
+    def project(m, c):
+        out = project_spherical(m[None], c[None], pose[None], az_res, el_res, el_min, 400, eps2d=eps)
+        return out.conics, out.covars2d, out.means2d
+
+    skew = torch.randn(4, 3, 3, generator=g, dtype=f64) * 0.01  # every entry is read as given
+    assert torch.autograd.gradcheck(project, (means[:4].clone().requires_grad_(), (covars[:4] + skew).requires_grad_()))
+
+
 def test_lidar_equals_dense_reference_forward_and_gradients():
     g = torch.Generator().manual_seed(1)
     n = 300
