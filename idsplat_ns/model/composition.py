@@ -100,16 +100,16 @@ def compose_gaussians(
     present_pad = torch.cat([present.to(device=means.device, dtype=torch.bool),
                              torch.zeros(1, dtype=torch.bool, device=means.device)])
     here = present_pad[row]  # [M]
-    r = row.clamp_min(0)  # absent or unknown rows are posed with row 0's pose, then dropped
-    if traj_R.shape[0] == 0:  # no trajectory at all: every instance Gaussian is dropped
-        keep[dyn] = False
-        return (means[keep], quats[keep], keep) if drop else (means, quats, keep)
-    R, t = traj_R[r], traj_t[r]  # one pose per instance Gaussian (only those, not all N)
-    moved_means = canonical_to_world(means.index_select(0, dyn), R, t)
-    # q(R) once per trajectory, then gathered: cheaper than converting N matrices.
-    moved_quats = quat_multiply(rotmat_to_quat(traj_R)[r], quats.index_select(0, dyn))
-    means_w = means.index_put((dyn,), moved_means)
-    quats_w = quats.index_put((dyn,), moved_quats)
+    if traj_R.shape[0] == 0:  # no trajectory at all: nothing to move, every instance row is dropped
+        means_w, quats_w = means, quats
+    else:
+        r = row.clamp_min(0)  # absent or unknown rows are posed with row 0's pose, then dropped
+        R, t = traj_R[r], traj_t[r]  # one pose per instance Gaussian (only those, not all N)
+        moved_means = canonical_to_world(means.index_select(0, dyn), R, t)
+        # q(R) once per trajectory, then gathered: cheaper than converting N matrices.
+        moved_quats = quat_multiply(rotmat_to_quat(traj_R)[r], quats.index_select(0, dyn))
+        means_w = means.index_put((dyn,), moved_means)
+        quats_w = quats.index_put((dyn,), moved_quats)
     if bool(here.all()):
         return means_w, quats_w, keep
     keep[dyn] = here

@@ -159,11 +159,11 @@ class SceneModel(nn.Module):
         if self.deformation is not None:
             canonical = canonical + self.deformation.offsets(canonical, ids, time)
         means, quats, keep = compose_gaussians(canonical, g["quats"], ids, R, t, present, traj_ids, drop=drop_absent)
-        if bool(keep.all()):  # every instance present: no [N, D] gathers (nor their backward)
+        everyone = bool(keep.all())
+        if everyone or not drop_absent:  # every row stays: no [N, D] gathers (nor their backward)
             out = {k: v for k, v in g.items() if k not in ("means", "quats")} | {"instance_ids": ids}
-        elif not drop_absent:  # absent instances stay, transparent
-            out = {k: v for k, v in g.items() if k not in ("means", "quats")} | {"instance_ids": ids}
-            out["opacities"] = g["opacities"] * keep
+            if not everyone:  # absent instances stay, transparent
+                out["opacities"] = g["opacities"] * keep
         else:
             out = {k: v[keep] for k, v in g.items() if k not in ("means", "quats")} | {"instance_ids": ids[keep]}
         out = out | {"means": means, "quats": quats}
