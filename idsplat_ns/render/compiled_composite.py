@@ -360,6 +360,15 @@ def _run_split(kernel, order: np.ndarray, threads: int, per_part) -> None:
         f.result()
 
 
+def _filled(shape: tuple, dtype, value: float = 0.0) -> np.ndarray:
+    """An array the threaded kernels write into, its pages touched here, in one thread: fresh
+    pages first written from two threads at once made the camera backward kernel 2x slower
+    (page faults, measured in ``bench/bench_rasterizer.py``)."""
+    out = np.empty(shape, dtype)
+    out.fill(value)
+    return out
+
+
 def _array(x: Tensor, dtype) -> np.ndarray:
     return np.ascontiguousarray(x.detach().to(dtype).numpy())
 
@@ -384,11 +393,11 @@ def _composite_forward(ctx, coeffs: np.ndarray, params: np.ndarray, centres: np.
         gdepth=_array(plan.gaussian_depths, dtype) if has_cutoff else np.zeros(0, np_dtype),
         consts=_CONSTANTS.astype(np_dtype),
     )  # fmt: skip
-    out = np.zeros((n_tiles, d, slots), np_dtype)
-    crossing = np.zeros((n_tiles, slots), np.int32)
-    before = np.zeros((n_tiles if has_cutoff else 0, slots), np_dtype)
-    stop = np.zeros((n_tiles, slots), np.int64)  # rows relative to the tile's start
-    t_final = np.ones((n_tiles, slots), np_dtype)
+    out = _filled((n_tiles, d, slots), np_dtype)
+    crossing = _filled((n_tiles, slots), np.int32)
+    before = _filled((n_tiles if has_cutoff else 0, slots), np_dtype)
+    stop = _filled((n_tiles, slots), np.int64)  # rows relative to the tile's start
+    t_final = _filled((n_tiles, slots), np_dtype, 1.0)
     outputs = dict(out=out, crossing=crossing, before=before, stop=stop, t_final=t_final)
     _run_split(_forward, order, threads, lambda k: {**arrays, **outputs})  # tiles are disjoint: shared outputs
     ctx.arrays, ctx.order, ctx.stop, ctx.t_final = arrays, order, stop, t_final
@@ -411,9 +420,9 @@ def _composite_backward(ctx, grad_out: Tensor, grad_before_cutoff: tuple):
     g_before = np.zeros((0, slots), feats.dtype)
     if ctx.has_cutoff and grad_before_cutoff and grad_before_cutoff[0] is not None:
         g_before = _array(grad_before_cutoff[0].reshape(n_tiles, slots), grad_out.dtype)
-    g_coeffs = np.zeros_like(arrays["coeffs"])
-    g_params = np.zeros((threads,) + arrays["params"].shape)  # [threads, 0, 6] in coefficient mode
-    g_feats = np.zeros((threads,) + feats.shape, feats.dtype)
+    g_coeffs = _filled(arrays["coeffs"].shape, arrays["coeffs"].dtype)
+    g_params = _filled((threads,) + arrays["params"].shape, np.float64)  # [threads, 0, 6] in coefficient mode
+    g_feats = _filled((threads,) + feats.shape, feats.dtype)
     shared = dict(arrays, stop=ctx.stop, t_final=ctx.t_final, g_out=g_out, g_before=g_before, g_coeffs=g_coeffs)
     # A row belongs to one tile (its coefficient gradient has one writer); a Gaussian's parameter
     # and feature gradients gather from many tiles, so each thread has buffers of its own.
