@@ -170,6 +170,21 @@ def test_image_is_the_same_for_any_thread_count():
     assert all(torch.equal(image, images[0]) for image in images)
 
 
+def test_gradients_are_the_same_for_any_thread_count():
+    # Each thread sums into buffers of its own (filled before the threads start), then they are
+    # added: only the order of those sums changes with the count.
+    base, vm, Ks, inst = _camera_scene(torch.float64)
+    previous, grads = torch.get_num_threads(), []
+    for n in (1, 3):
+        torch.set_num_threads(n)
+        params = [t.clone().requires_grad_() for t in base]
+        grads.append(_render_camera("compiled", params, vm, Ks, inst)[1])
+    torch.set_num_threads(previous)
+    for x, y in zip(*grads):
+        assert y.abs().max() > 0
+        torch.testing.assert_close(x, y, atol=1e-12, rtol=1e-10)
+
+
 def test_numba_is_loaded_only_when_the_compiled_loops_run(monkeypatch):
     # CUDA runs never load numba; an environment without it (the GPU benches' --target install)
     # gets the torch compositor under "auto" and a one-line error under "compiled".
