@@ -13,6 +13,10 @@ point reads it from the cache. Then ``ns-eval``: PSNR, SSIM, DPSNR, MOTA@2m, lid
     .venv/bin/python bench/pareto.py --seeds 100 --work outputs/pareto --table docs/pareto_table.md --plot docs/pareto.png
     .venv/bin/python bench/pareto.py --points steps-300 steps-1000 --seeds 100 101 --work W
 
+Each training and evaluation runs on ``--threads`` threads (default 1: ``OMP_NUM_THREADS`` in their
+environment, which torch and the compiled compositor follow), so that several can share the
+machine and their CPU times compare.
+
 Results are stored per (street, point) in ``WORK/<street>/<point>/``; a point whose eval.json
 exists is read, not trained again.
 """
@@ -22,6 +26,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import subprocess
 import sys
 import time
@@ -81,7 +86,12 @@ def train_point(street: Path, out: Path, steps: int, overrides: dict) -> None:
     trainer.train()
 
 
-def measured(cmd: list[str]) -> dict:
+def threads_env(threads: int) -> dict:
+    """This process's environment with ``threads`` threads for torch (and so the compiled compositor)."""
+    return {**os.environ, "OMP_NUM_THREADS": str(threads)}
+
+
+def measured(cmd: list[str], threads: int = 1) -> dict:
     """Run ``cmd`` (printed first, must succeed); its wall time, CPU time and peak RSS.
     Peak RSS comes from a wrapper process whose only child is ``cmd``."""
     print("$ " + " ".join(cmd), flush=True)
@@ -90,7 +100,7 @@ def measured(cmd: list[str]) -> dict:
                "u = resource.getrusage(resource.RUSAGE_CHILDREN); "
                "print('MEASURED ' + json.dumps({'rc': rc, 'wall_s': w, 'cpu_s': u.ru_utime + u.ru_stime, "
                "'peak_rss_gib': u.ru_maxrss / 2**20}))")
-    done = subprocess.run([sys.executable, "-c", wrapper, *cmd], capture_output=True, text=True)
+    done = subprocess.run([sys.executable, "-c", wrapper, *cmd], capture_output=True, text=True, env=threads_env(threads))
     sys.stdout.write(done.stdout[-2000:])
     line = [x for x in done.stdout.splitlines() if x.startswith("MEASURED ")]
     if done.returncode or not line or json.loads(line[-1][9:])["rc"]:
@@ -108,17 +118,17 @@ def final_gaussians(run_dir: Path) -> int:
 
 
 
-def run_point(street: Path, work: Path, name: str) -> dict:
+def run_point(street: Path, work: Path, name: str, threads: int = 1) -> dict:
     steps, overrides = POINTS[name]
     out = work / name.replace(" ", "_").replace(",", "").replace("(", "").replace(")", "")
     result_file = out / "result.json"
     if result_file.is_file():
         return json.loads(result_file.read_text())
     out.mkdir(parents=True, exist_ok=True)
-    cost = measured([sys.executable, __file__, "--train-one", json.dumps([str(street), str(out), steps, overrides])])
+    cost = measured([sys.executable, __file__, "--train-one", json.dumps([str(street), str(out), steps, overrides])], threads)
     run_dir = out / "point" / "idsplat-fast" / "run"
     subprocess.run([str(BIN / "ns-eval"), "--load-config", str(run_dir / "config.yml"), "--output-path",
-                    str(out / "eval.json")], check=True, capture_output=True)  # fmt: skip
+                    str(out / "eval.json")], check=True, capture_output=True, env=threads_env(threads))  # fmt: skip
     r = json.loads((out / "eval.json").read_text())["results"]
     row = {"point": name, "steps": steps, **cost, "psnr": r.get("psnr"), "ssim": r.get("ssim"), "dpsnr": r.get("dpsnr"),
            "mota@2m": r.get("mota@2m"), "lidar_depth": r.get("lidar_depth_median_sq_err"), "gaussians": final_gaussians(run_dir)}
@@ -198,7 +208,10 @@ def main() -> None:
     ap.add_argument("--work", type=Path, default=REPO / "outputs" / "pareto")
     ap.add_argument("--table", type=Path, default=None, help="also write the markdown table here")
     ap.add_argument("--plot", type=Path, default=None, help="write the Pareto plot (PNG) here")
+    ap.add_argument("--threads", type=int, default=1, help="threads of each training and evaluation")
     args = ap.parse_args()
+    if args.threads < 1:
+        raise SystemExit(f"pareto.py: --threads {args.threads}: give 1 or more")
     if args.train_one:
         street, out, steps, overrides = json.loads(args.train_one)
         train_point(Path(street), Path(out), int(steps), overrides)
@@ -214,11 +227,11 @@ def main() -> None:
         prep_file = args.work / name / "preprocess.json"
         if not prep_file.is_file():
             prep_file.parent.mkdir(parents=True, exist_ok=True)
-            prep_file.write_text(json.dumps(measured([str(BIN / "idsplat-preprocess"), "--data", str(street)])))
+            prep_file.write_text(json.dumps(measured([str(BIN / "idsplat-preprocess"), "--data", str(street)], args.threads)))
         prep = json.loads(prep_file.read_text())
         print(f"{name}: preprocessing {prep['wall_s']:.0f} s wall, {prep['cpu_s']:.0f} s CPU", flush=True)
         for point in args.points:
-            rows.append({"street": name, **run_point(street, args.work / name, point)})
+            rows.append({"street": name, **run_point(street, args.work / name, point, args.threads)})
             print(table(rows[-1:]).splitlines()[-1], flush=True)
     text = table(rows)
     if len({r["street"] for r in rows}) > 1:

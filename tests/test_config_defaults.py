@@ -41,20 +41,37 @@ def test_a_complete_config_round_trips_unchanged():
     assert yaml.dump(yaml.load(text, Loader=yaml.Loader)) == text
 
 
-def test_the_cpu_presets_are_the_points_measured_in_bench_pareto():
-    # docs/pareto.md reports idsplat-fast and idsplat-preview as points of bench/pareto.py: the
-    # presets must be what those points train.
+def _bench_pareto():
     import importlib.util
     from pathlib import Path
-
-    from method_configs.idsplat import idsplat_fast_method, idsplat_preview_method
 
     spec = importlib.util.spec_from_file_location("pareto", Path(__file__).resolve().parents[1] / "bench" / "pareto.py")
     pareto = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(pareto)
+    return pareto
+
+
+def test_the_cpu_presets_are_the_points_measured_in_bench_pareto():
+    # docs/pareto.md reports idsplat-fast and idsplat-preview as points of bench/pareto.py: the
+    # presets must be what those points train.
+    from method_configs.idsplat import idsplat_fast_method, idsplat_preview_method
+
+    pareto = _bench_pareto()
     for method, point in ((idsplat_fast_method, "steps-1500 (idsplat-fast)"),
                           (idsplat_preview_method, "steps-1000, half initial Gaussians")):  # fmt: skip
         cfg = pareto.point_config(*pareto.POINTS[point])
         assert cfg.max_num_iterations == method.config.max_num_iterations
         assert cfg.pipeline.model == method.config.pipeline.model
         assert cfg.optimizers == method.config.optimizers
+
+
+def test_bench_pareto_children_run_on_the_threads_asked(capsys):
+    # docs/pareto.md reports CPU times of one-thread trainings: the count reaches the child.
+    import os
+    import sys
+
+    pareto = _bench_pareto()
+    probe = "import torch; print('THREADS', torch.get_num_threads())"
+    for threads in (1, 2):
+        assert pareto.measured([sys.executable, "-c", probe], threads)["rc"] == 0
+        assert f"THREADS {min(threads, os.cpu_count())}" in capsys.readouterr().out  # torch takes at most the cores
