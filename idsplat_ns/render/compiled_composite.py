@@ -362,8 +362,8 @@ def _run_split(kernel, order: np.ndarray, threads: int, per_part) -> None:
 
 def _filled(shape: tuple, dtype, value: float = 0.0) -> np.ndarray:
     """An array the threaded kernels write into, its pages touched here, in one thread: fresh
-    pages first written from two threads at once made the camera backward kernel 2x slower
-    (page faults, measured in ``bench/bench_rasterizer.py``)."""
+    pages first written from two threads at once (page faults) made the camera's backward kernel
+    on 2 threads no faster than on 1 (docs/rendering.md, "Measured: speed")."""
     out = np.empty(shape, dtype)
     out.fill(value)
     return out
