@@ -42,7 +42,7 @@ POINTS: dict[str, tuple[int, dict]] = {
     "steps-600": (600, {}),
     "steps-1000": (1000, {}),
     "steps-1500 (idsplat-fast)": (1500, {}),
-    "steps-3000": (3000, {}),
+    "steps-3000 (idsplat-medium)": (3000, {}),
     "steps-1000, lidar every step": (1000, {"pipeline.model.lidar.every_n_steps": 1}),
     "steps-1000, half initial Gaussians": (1000, HALF_INITIAL),
     "steps-600, half initial Gaussians": (600, HALF_INITIAL),

@@ -24,7 +24,8 @@ import torch
 
 
 # The registered presets: ns-train name -> MethodSpecification in method_configs/idsplat.py.
-PRESETS = {"idsplat": "idsplat_method", "idsplat-fast": "idsplat_fast_method", "idsplat-preview": "idsplat_preview_method"}
+PRESETS = {"idsplat": "idsplat_method", "idsplat-fast": "idsplat_fast_method", "idsplat-preview": "idsplat_preview_method",
+           "idsplat-medium": "idsplat_medium_method"}
 
 
 def _sync() -> None:

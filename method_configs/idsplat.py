@@ -115,6 +115,11 @@ idsplat_fast_method = MethodSpecification(
     description="IDSplat, CPU-sized preset: 1500 steps, short resolution schedule, fewer initial Gaussians.",
 )
 
+idsplat_medium_method = MethodSpecification(
+    config=make_trainer_config("idsplat-medium", 3000, (600, 1400), fast=True),
+    description="IDSplat, CPU-sized preset: idsplat-fast's model trained twice as long (3000 steps).",
+)
+
 idsplat_preview_method = MethodSpecification(
     config=make_trainer_config("idsplat-preview", 1000, (200, 466), fast=True, initial_points=PREVIEW_INITIAL_POINTS),
     description="IDSplat, quick-look preset: 1000 steps from half of idsplat-fast's initial Gaussians.",

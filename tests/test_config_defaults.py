@@ -52,12 +52,13 @@ def _bench_pareto():
 
 
 def test_the_cpu_presets_are_the_points_measured_in_bench_pareto():
-    # docs/pareto.md reports idsplat-fast and idsplat-preview as points of bench/pareto.py: the
+    # docs/pareto.md reports the CPU presets as points of bench/pareto.py: the
     # presets must be what those points train.
-    from method_configs.idsplat import idsplat_fast_method, idsplat_preview_method
+    from method_configs.idsplat import idsplat_fast_method, idsplat_medium_method, idsplat_preview_method
 
     pareto = _bench_pareto()
     for method, point in ((idsplat_fast_method, "steps-1500 (idsplat-fast)"),
+                          (idsplat_medium_method, "steps-3000 (idsplat-medium)"),
                           (idsplat_preview_method, "steps-1000, half initial Gaussians")):  # fmt: skip
         cfg = pareto.point_config(*pareto.POINTS[point])
         assert cfg.max_num_iterations == method.config.max_num_iterations

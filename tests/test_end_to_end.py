@@ -66,7 +66,8 @@ def test_ns_train_lists_idsplat():
     ns_train = Path(sys.executable).parent / "ns-train"
     res = _run([str(ns_train), "--help"])
     assert res.returncode == 0
-    assert "idsplat" in res.stdout and "idsplat-fast" in res.stdout and "idsplat-preview" in res.stdout
+    for method in ("idsplat", "idsplat-fast", "idsplat-preview", "idsplat-medium"):
+        assert method in res.stdout, method
 
 
 def test_ns_train_missing_data_is_one_line(tmp_path):
