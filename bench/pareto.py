@@ -91,8 +91,8 @@ def threads_env(threads: int) -> dict:
     return {**os.environ, "OMP_NUM_THREADS": str(threads)}
 
 
-def measured(cmd: list[str], threads: int = 1) -> dict:
-    """Run ``cmd`` (printed first, must succeed); its wall time, CPU time and peak RSS.
+def measured(cmd: list[str], threads: int) -> dict:
+    """Run ``cmd`` (printed first, must succeed) on ``threads`` threads; its wall time, CPU time and peak RSS.
     Peak RSS comes from a wrapper process whose only child is ``cmd``."""
     print("$ " + " ".join(cmd), flush=True)
     wrapper = ("import json, resource, subprocess, sys, time; t = time.perf_counter(); "
@@ -100,7 +100,8 @@ def measured(cmd: list[str], threads: int = 1) -> dict:
                "u = resource.getrusage(resource.RUSAGE_CHILDREN); "
                "print('MEASURED ' + json.dumps({'rc': rc, 'wall_s': w, 'cpu_s': u.ru_utime + u.ru_stime, "
                "'peak_rss_gib': u.ru_maxrss / 2**20}))")
-    done = subprocess.run([sys.executable, "-c", wrapper, *cmd], capture_output=True, text=True, env=threads_env(threads))
+    done = subprocess.run([sys.executable, "-c", wrapper, *cmd], capture_output=True, text=True,
+                          env=threads_env(threads))
     sys.stdout.write(done.stdout[-2000:])
     line = [x for x in done.stdout.splitlines() if x.startswith("MEASURED ")]
     if done.returncode or not line or json.loads(line[-1][9:])["rc"]:
@@ -118,14 +119,15 @@ def final_gaussians(run_dir: Path) -> int:
 
 
 
-def run_point(street: Path, work: Path, name: str, threads: int = 1) -> dict:
+def run_point(street: Path, work: Path, name: str, threads: int) -> dict:
     steps, overrides = POINTS[name]
     out = work / name.replace(" ", "_").replace(",", "").replace("(", "").replace(")", "")
     result_file = out / "result.json"
     if result_file.is_file():
         return json.loads(result_file.read_text())
     out.mkdir(parents=True, exist_ok=True)
-    cost = measured([sys.executable, __file__, "--train-one", json.dumps([str(street), str(out), steps, overrides])], threads)
+    job = json.dumps([str(street), str(out), steps, overrides])
+    cost = measured([sys.executable, __file__, "--train-one", job], threads)
     run_dir = out / "point" / "idsplat-fast" / "run"
     subprocess.run([str(BIN / "ns-eval"), "--load-config", str(run_dir / "config.yml"), "--output-path",
                     str(out / "eval.json")], check=True, capture_output=True, env=threads_env(threads))  # fmt: skip
@@ -227,7 +229,8 @@ def main() -> None:
         prep_file = args.work / name / "preprocess.json"
         if not prep_file.is_file():
             prep_file.parent.mkdir(parents=True, exist_ok=True)
-            prep_file.write_text(json.dumps(measured([str(BIN / "idsplat-preprocess"), "--data", str(street)], args.threads)))
+            prep = measured([str(BIN / "idsplat-preprocess"), "--data", str(street)], args.threads)
+            prep_file.write_text(json.dumps(prep))
         prep = json.loads(prep_file.read_text())
         print(f"{name}: preprocessing {prep['wall_s']:.0f} s wall, {prep['cpu_s']:.0f} s CPU", flush=True)
         for point in args.points:
