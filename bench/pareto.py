@@ -176,6 +176,16 @@ def summary(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def point_means(rows: list[dict], key: str) -> dict[str, tuple[float, float]]:
+    """Per point, in CPU-time order: (mean CPU seconds, mean ``key``) over the streets that have both."""
+    means = {}
+    for point in dict.fromkeys(r["point"] for r in rows):
+        mine = [r for r in rows if r["point"] == point and r.get(key) is not None]
+        if mine:
+            means[point] = (sum(r["cpu_s"] for r in mine) / len(mine), sum(r[key] for r in mine) / len(mine))
+    return dict(sorted(means.items(), key=lambda kv: kv[1][0]))
+
+
 def plot(rows: list[dict], path: Path) -> None:
     import matplotlib
 
@@ -192,11 +202,15 @@ def plot(rows: list[dict], path: Path) -> None:
                             xytext=(3, 3), textcoords="offset points")  # fmt: skip
             front = sorted(pareto_front(mine, key), key=lambda r: r["cpu_s"])
             ax.plot([r["cpu_s"] / 60 for r in front], [r[key] for r in front], "--", lw=1)
+        means = point_means(rows, key)
+        if len({r["street"] for r in rows}) > 1 and len(means) > 1:
+            ax.plot([m[0] / 60 for m in means.values()], [m[1] for m in means.values()], "k-o", lw=1.5, ms=4,
+                    label="mean over streets")  # fmt: skip
         ax.set_xlabel("training CPU time (min)")
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=8)
-    fig.suptitle("Speed against accuracy (dashed: the Pareto front)")
+    fig.suptitle("Speed against accuracy (dashed: each street's Pareto front; black: the mean of each point)")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
 

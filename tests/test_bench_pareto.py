@@ -1,0 +1,73 @@
+"""bench/pareto.py: the presets are its points, its children run on the threads asked, and its
+front, means and plot are what the table in docs/pareto.md says."""
+
+from __future__ import annotations
+
+import pytest
+
+pytest.importorskip("nerfstudio")
+
+
+def _bench_pareto():
+    import importlib.util
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location("pareto", Path(__file__).resolve().parents[1] / "bench" / "pareto.py")
+    pareto = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(pareto)
+    return pareto
+
+
+def test_the_cpu_presets_are_the_points_measured_in_bench_pareto():
+    # docs/pareto.md reports the CPU presets as points of bench/pareto.py: the
+    # presets must be what those points train.
+    from method_configs.idsplat import idsplat_fast_method, idsplat_medium_method, idsplat_preview_method
+
+    pareto = _bench_pareto()
+    for method, point in ((idsplat_fast_method, "steps-1500 (idsplat-fast)"),
+                          (idsplat_medium_method, "steps-3000 (idsplat-medium)"),
+                          (idsplat_preview_method, "steps-1000, half initial Gaussians")):  # fmt: skip
+        cfg = pareto.point_config(*pareto.POINTS[point])
+        assert cfg.max_num_iterations == method.config.max_num_iterations
+        assert cfg.pipeline.model == method.config.pipeline.model
+        assert cfg.optimizers == method.config.optimizers
+
+
+def test_bench_pareto_children_run_on_the_threads_asked(capsys):
+    # docs/pareto.md reports CPU times of one-thread trainings: the count reaches the child.
+    import os
+    import sys
+
+    pareto = _bench_pareto()
+    probe = "import torch; print('THREADS', torch.get_num_threads())"
+    for threads in (1, 2):
+        assert pareto.measured([sys.executable, "-c", probe], threads)["rc"] == 0
+        assert f"THREADS {min(threads, os.cpu_count())}" in capsys.readouterr().out  # torch takes at most the cores
+
+
+def _row(street: str, point: str, cpu_s: float, psnr: float, dpsnr: float | None = None) -> dict:
+    return {"street": street, "point": point, "cpu_s": cpu_s, "psnr": psnr, "dpsnr": dpsnr}
+
+
+def test_the_front_keeps_rows_no_faster_row_beats():
+    pareto = _bench_pareto()
+    rows = [_row("a", "p1", 100, 20.0), _row("a", "p2", 200, 22.0), _row("a", "p3", 300, 21.0),
+            _row("a", "p4", 400, 23.0), _row("a", "p5", 150, None)]  # fmt: skip
+    # p3 is slower and worse than p2; p5 has no PSNR, so any faster row with one beats it
+    assert [r["point"] for r in pareto.pareto_front(rows, "psnr")] == ["p1", "p2", "p4"]
+
+
+def test_point_means_average_over_streets_in_time_order():
+    pareto = _bench_pareto()
+    rows = [_row("a", "slow", 300, 24.0, 25.0), _row("b", "slow", 500, 26.0, None),
+            _row("a", "quick", 100, 20.0, 21.0), _row("b", "quick", 200, 22.0, 23.0)]  # fmt: skip
+    assert pareto.point_means(rows, "psnr") == {"quick": (150.0, 21.0), "slow": (400.0, 25.0)}
+    assert pareto.point_means(rows, "dpsnr") == {"quick": (150.0, 22.0), "slow": (300.0, 25.0)}  # street b has none
+
+
+def test_the_plot_is_written_for_several_streets(tmp_path):
+    pareto = _bench_pareto()
+    rows = [_row(s, p, t + 50 * k, q + k, q + k + 1) for k, s in enumerate("ab")
+            for p, t, q in (("steps-600", 300, 22.0), ("steps-1500 (idsplat-fast)", 900, 25.0))]  # fmt: skip
+    pareto.plot(rows, tmp_path / "front.png")
+    assert (tmp_path / "front.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
