@@ -192,20 +192,25 @@ def plot(rows: list[dict], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    several = len({r["street"] for r in rows}) > 1
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     for ax, key, label in zip(axes, ("psnr", "dpsnr"), ("PSNR (dB)", "DPSNR (dB)")):
+        labelled = []  # (minutes, dB, point): each point once, at its mean where there are several streets
         for street in sorted({r["street"] for r in rows}):
             mine = [r for r in rows if r["street"] == street and r.get(key) is not None]
-            ax.scatter([r["cpu_s"] / 60 for r in mine], [r[key] for r in mine], label=street)
-            for r in mine:
-                ax.annotate(r["point"].replace("steps-", ""), (r["cpu_s"] / 60, r[key]), fontsize=7,
-                            xytext=(3, 3), textcoords="offset points")  # fmt: skip
+            ax.scatter([r["cpu_s"] / 60 for r in mine], [r[key] for r in mine], s=18 if several else 36, label=street)
             front = sorted(pareto_front(mine, key), key=lambda r: r["cpu_s"])
             ax.plot([r["cpu_s"] / 60 for r in front], [r[key] for r in front], "--", lw=1)
+            labelled += [] if several else [(r["cpu_s"] / 60, r[key], r["point"]) for r in mine]
         means = point_means(rows, key)
-        if len({r["street"] for r in rows}) > 1 and len(means) > 1:
-            ax.plot([m[0] / 60 for m in means.values()], [m[1] for m in means.values()], "k-o", lw=1.5, ms=4,
+        if several:
+            ax.plot([m[0] / 60 for m in means.values()], [m[1] for m in means.values()], "k-o", lw=1.5, ms=5,
                     label="mean over streets")  # fmt: skip
+            labelled = [(t / 60, q, point) for point, (t, q) in means.items()]
+        for minutes, value, point in labelled:
+            ax.annotate(point.replace("steps-", ""), (minutes, value), fontsize=7, xytext=(4, -10),
+                        textcoords="offset points")  # fmt: skip
+        ax.margins(x=0.2)  # room for the labels of the longest runs
         ax.set_xlabel("training CPU time (min)")
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
