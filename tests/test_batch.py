@@ -194,11 +194,30 @@ def test_sequence_file_and_commands(tmp_path: Path) -> None:
     assert train[train.index("idsplat-auto"):] == ["idsplat-auto", "--data", "/d/a", "--protocol", "pandaset-10",
                                                   "--cameras", "front_camera", "--downscale-factor", "2"]
     pre = preprocess_command(seq, user)
-    assert pre == ["idsplat-preprocess", "--instance-mode", "self-supervised", "--preprocess.masks.kind", "ground-truth",
-                   "--data", "/d/a", "--protocol", "pandaset-10", "--cameras", "front_camera"]
+    assert pre == ["idsplat-preprocess", "--instance-mode", "self-supervised", "--data", "/d/a", "--protocol",
+                   "pandaset-10", "--cameras", "front_camera", "--preprocess.masks.kind", "ground-truth"]
     assert preprocess_command(seq, split_user_options(["--pipeline.datamanager.instance-mode", "static"])) is None
     with pytest.raises(IDSplatError, match="--output-dir: set by idsplat-batch"):
         split_user_options(["--output-dir", "x"])
+
+
+def test_the_preprocess_command_is_what_idsplat_preprocess_parses() -> None:
+    # The batch translates ns-train options for idsplat-preprocess: true/false settings keep
+    # ns-train's spelling, and the lidar selection (which changes the stage caches' input) carries over.
+    from idsplat_ns.nerfstudio.preprocess_cli import parse_args
+
+    user = split_user_options(["--pipeline.datamanager.preprocess.lifting.use-dbscan", "False",
+                               "--pipeline.datamanager.preprocess.trajectory.registration.max-iterations", "1000",
+                               "pipeline.datamanager.preprocess.smoothing:smoothing-config",
+                               "--pipeline.datamanager.preprocess.smoothing.drop-outlier-points", "True",
+                               "idsplat-waymo", "--lidars", "TOP", "FRONT", "--second-return", "False",
+                               "--downscale-factor", "2"])  # fmt: skip
+    pre = preprocess_command(Sequence("s", Path("/d/s.tfrecord"), None), user)
+    assert pre[0] == "idsplat-preprocess" and "--downscale-factor" not in pre  # preprocessing reads full-size images
+    args = parse_args(pre[1:])
+    assert (args.data, args.lidars, args.second_return) == (Path("/d/s.tfrecord"), ("TOP", "FRONT"), False)
+    assert args.preprocess.lifting.use_dbscan is False and args.preprocess.trajectory.registration.max_iterations == 1000
+    assert args.preprocess.smoothing.drop_outlier_points is True
 
 
 def test_bad_invocation_is_one_line(tmp_path: Path) -> None:

@@ -209,6 +209,31 @@ def test_waymo_lidar_selection_reaches_the_loader(segments):
         WaymoDataParserConfig(data=seg, lidars=("REAR2",), end_frame=1).setup().scene  # noqa: B018
 
 
+@needs_frame
+def test_auto_dataparser_takes_each_formats_lidar_options(segments, tiny_street):
+    # `ns-train idsplat --data X` and idsplat-preprocess (which builds this config) take the lidar
+    # options that the memory check names, without the idsplat-waymo subcommand.
+    pytest.importorskip("nerfstudio")
+    from idsplat_ns.nerfstudio.dataparser import AutoDataParserConfig, PandaSetDataParserConfig
+
+    seg, _, v2, _ = segments
+    for data in (seg, v2):
+        concrete = AutoDataParserConfig(data=data, lidars=("TOP",), second_return=False).concrete()
+        assert (concrete.lidars, concrete.second_return) == (("TOP",), False)
+    scene = AutoDataParserConfig(data=seg, lidars=("TOP",), cameras=("FRONT",), end_frame=2).load_scene()
+    assert np.unique(np.concatenate([s.sensor_ids for s in scene.lidar])).tolist() == [1]  # TOP only
+    concrete = AutoDataParserConfig(data=tiny_street, lidar_sensors=(0, 1)).concrete()
+    assert isinstance(concrete, PandaSetDataParserConfig) and concrete.lidar_sensors == (0, 1)
+    cases = [(dict(data=tiny_street, lidars=("TOP",)), "--lidars: not an option for .*PandaSet layout.*--lidar-sensors"),
+             (dict(data=tiny_street, second_return=False), "--second-return: not an option for"),
+             (dict(data=seg, lidar_sensors=(1,)), "--lidar-sensors: not an option for .*Waymo.*--lidars"),
+             (dict(lidars=("TOP",), second_return=False), "--lidars and --second-return: not an option for the built-in")]
+    for kwargs, match in cases:
+        with pytest.raises(IDSplatError, match=match) as err:
+            AutoDataParserConfig(**kwargs).concrete()
+        assert "\n" not in str(err.value)
+
+
 def test_auto_without_data_is_the_builtin_street():
     pytest.importorskip("nerfstudio")
     from idsplat_ns.nerfstudio.dataparser import AutoDataParserConfig, BuiltinDataParserConfig

@@ -60,9 +60,9 @@ def _idsplat_synth(args):
 
 
 def _idsplat_preprocess(args):
-    from idsplat_ns.nerfstudio.preprocess_cli import PreprocessArgs
+    from idsplat_ns.nerfstudio.preprocess_cli import parse_args
 
-    return _tyro(PreprocessArgs, args)
+    return parse_args(args)
 
 
 def _idsplat_edit(args):

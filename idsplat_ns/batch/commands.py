@@ -25,10 +25,12 @@ OWNED_OPTIONS = ("--data", "--output-dir", "--experiment-name", "--timestamp", "
                  "--load-checkpoint", "--method-name")
 """ns-train options the batch sets itself (the data, the run folder, and which checkpoint a resume
 starts from: the run's latest); given by the user they are refused."""
-# Dataparser options that idsplat-preprocess shares (same names): the frame/camera selection and split.
+# Dataparser options that idsplat-preprocess shares (same names): the frame, camera and lidar
+# selection and the split (the image scale does not change its input: it reads full-size images).
 _PREPROCESS_DATA_OPTIONS = ("--segment", "--context-name", "--protocol", "--cameras", "--start-frame", "--end-frame",
-                            "--train-fraction", "--eval-every")
+                            "--train-fraction", "--eval-every", "--lidars", "--second-return", "--lidar-sensors")
 _PREPROCESS_PREFIX = "--pipeline.datamanager.preprocess."
+_PREPROCESS_SUBCOMMAND = "pipeline.datamanager.preprocess."  # a settings subcommand, e.g. ...smoothing:none
 _INSTANCE_MODE = "--pipeline.datamanager.instance-mode"
 
 
@@ -106,19 +108,6 @@ def preprocess_command(seq: Sequence, user: UserOptions) -> Optional[list[str]]:
     if mode == "static":
         return None
     cmd = ["idsplat-preprocess", "--instance-mode", mode]
-    args = user.method_args
-    i = 0
-    while i < len(args):
-        token = args[i]
-        if token.startswith(_PREPROCESS_PREFIX):
-            cmd.append("--preprocess." + token[len(_PREPROCESS_PREFIX):])
-            # Values follow until the next option (tuple-valued settings take several).
-            i += 1
-            while i < len(args) and not args[i].startswith("--"):
-                cmd.append(args[i])
-                i += 1
-            continue
-        i += 1
     tail = _dataparser_tail(seq, user)
     cmd += tail[:2]  # --data
     rest = tail[2:]
@@ -131,6 +120,23 @@ def preprocess_command(seq: Sequence, user: UserOptions) -> Optional[list[str]]:
         if _flag(token) in _PREPROCESS_DATA_OPTIONS:
             cmd += rest[i:j]
         i = j
+    # The preprocess settings last and in the user's order: a settings subcommand
+    # (pipeline.datamanager.preprocess.smoothing:none) takes the options after it, not the data's.
+    args = user.method_args
+    i = 0
+    while i < len(args):
+        token = args[i]
+        if token.startswith(_PREPROCESS_PREFIX):
+            cmd.append("--preprocess." + token[len(_PREPROCESS_PREFIX):])
+            # Values follow until the next option (tuple-valued settings take several).
+            i += 1
+            while i < len(args) and not args[i].startswith("--") and not args[i].startswith(_PREPROCESS_SUBCOMMAND):
+                cmd.append(args[i])
+                i += 1
+            continue
+        if token.startswith(_PREPROCESS_SUBCOMMAND):
+            cmd.append("preprocess." + token[len(_PREPROCESS_SUBCOMMAND):])
+        i += 1
     return cmd
 
 

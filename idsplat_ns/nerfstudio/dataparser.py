@@ -198,6 +198,12 @@ class AutoDataParserConfig(IDSplatDataParserConfig):
     """Without --data: the built-in street's preset (tiny, small, bench)."""
     builtin_seed: int = 0
     """Without --data: the built-in street's seed."""
+    lidars: Optional[Tuple[str, ...]] = None
+    """Waymo: lidars to load (TOP, FRONT, SIDE_LEFT, SIDE_RIGHT, REAR); default all five."""
+    second_return: bool = True
+    """Waymo: also keep second returns (extra rays where they hit)."""
+    lidar_sensors: Tuple[int, ...] = (0,)
+    """PandaSet: lidars to use, 0 the spinning Pandar64, 1 the front PandarGT."""
 
     def concrete(self) -> IDSplatDataParserConfig:
         """The dataparser config of the recognised format, with these options."""
@@ -206,22 +212,36 @@ class AutoDataParserConfig(IDSplatDataParserConfig):
         )}
         if self.train_fraction is not None or self.eval_every is not None:
             shared.update(train_fraction=0.5 if self.train_fraction is None else self.train_fraction, eval_every=self.eval_every)
+        waymo_options = [f for f, given in (("--lidars", self.lidars is not None), ("--second-return", not self.second_return)) if given]
+        pandaset_options = ["--lidar-sensors"] if tuple(self.lidar_sensors) != (0,) else []
         if self.data is None:
+            _refuse_options(waymo_options + pandaset_options, "the built-in street (no --data)")
             return BuiltinDataParserConfig(preset=self.builtin_preset, seed=self.builtin_seed, **shared)
         from idsplat_ns.data.formats import detect_data
 
         found = detect_data(self.data, self.segment, self.context_name)
         CONSOLE.print(f"[bold]data:[/bold] {found.describe()}")
         if found.format == "pandaset":
-            return PandaSetDataParserConfig(**shared)
+            _refuse_options(waymo_options, f"{self.data} (PandaSet layout; its lidars are chosen with --lidar-sensors)")
+            return PandaSetDataParserConfig(lidar_sensors=tuple(self.lidar_sensors), **shared)
+        _refuse_options(pandaset_options, f"{self.data} (Waymo; its lidars are chosen with --lidars)")
         shared["data"] = found.path if found.format == "waymo-v1" else self.data
-        return WaymoDataParserConfig(context_name=found.context_name if found.format == "waymo-v2" else None, **shared)
+        return WaymoDataParserConfig(
+            context_name=found.context_name if found.format == "waymo-v2" else None, lidars=self.lidars,
+            second_return=self.second_return, **shared,
+        )
 
     def resolved(self) -> IDSplatDataParserConfig:
         return self.concrete().resolved()
 
     def load_scene(self) -> Scene:
         return self.resolved().load_scene()
+
+
+def _refuse_options(options: list[str], data: str) -> None:
+    """One-line error for a format's options given with data of another format."""
+    if options:
+        raise IDSplatError(f"{' and '.join(options)}: not an option for {data}; remove {'them' if len(options) > 1 else 'it'}")
 
 
 class IDSplatDataParser(DataParser):

@@ -46,6 +46,12 @@ class PreprocessArgs:
     """Training share of the frames (default: the format's, as in ns-train); only training frames are used."""
     eval_every: Optional[int] = None
     """Hold out every k-th frame (overrides train_fraction)."""
+    lidars: Optional[tuple[str, ...]] = None
+    """Waymo: lidars to load (TOP, FRONT, SIDE_LEFT, SIDE_RIGHT, REAR); default all five, as in ns-train."""
+    second_return: bool = True
+    """Waymo: also keep second returns, as in ns-train."""
+    lidar_sensors: tuple[int, ...] = (0,)
+    """PandaSet: lidars to use (0 the Pandar64, 1 the front PandarGT), as in ns-train."""
     builtin_preset: str = "small"
     """Without --data: the built-in street's preset."""
     builtin_seed: int = 0
@@ -68,7 +74,8 @@ def preprocess(args: PreprocessArgs):
     config = AutoDataParserConfig(
         data=args.data, segment=args.segment, context_name=args.context_name, protocol=args.protocol,
         cameras=args.cameras, start_frame=args.start_frame, end_frame=args.end_frame,
-        train_fraction=args.train_fraction, eval_every=args.eval_every,
+        train_fraction=args.train_fraction, eval_every=args.eval_every, lidars=args.lidars,
+        second_return=args.second_return, lidar_sensors=args.lidar_sensors,
         builtin_preset=args.builtin_preset, builtin_seed=args.builtin_seed,
     ).resolved()
     scene = config.load_scene()
@@ -90,11 +97,18 @@ def preprocess(args: PreprocessArgs):
     return tracks
 
 
-def main(argv: Optional[list[str]] = None) -> None:
-    """Console entry point."""
+def parse_args(argv: list[str]) -> PreprocessArgs:
+    """The command line's settings; tyro exits with its message on an unknown option."""
     import tyro
 
-    args = tyro.cli(PreprocessArgs, args=sys.argv[1:] if argv is None else argv)
+    # True/false options take a value (--second-return False), as in ns-train, so that its
+    # --pipeline.datamanager.preprocess.* options carry over with only the prefix changed.
+    return tyro.cli(tyro.conf.FlagConversionOff[PreprocessArgs], args=argv)
+
+
+def main(argv: Optional[list[str]] = None) -> None:
+    """Console entry point."""
+    args = parse_args(sys.argv[1:] if argv is None else argv)
     run_cli(lambda: preprocess(args))
 
 
