@@ -1,11 +1,12 @@
-"""The methods ``idsplat`` (the paper's settings), ``idsplat-fast`` (a CPU-sized preset) and
-``idsplat-preview`` (a quicker look), registered with nerfstudio through entry points in
-pyproject.toml (dataparsers: dataparsers.py).
+"""The methods ``idsplat`` (the paper's settings), ``idsplat-medium``, ``idsplat-fast`` (CPU-sized
+presets) and ``idsplat-preview`` (a quicker look), registered with nerfstudio through entry points
+in pyproject.toml (dataparsers: dataparsers.py).
 
 The speed/accuracy trade is a preset: ``idsplat-fast`` keeps the model and losses but trains
 fewer steps with a proportionally shorter resolution schedule, fewer initial Gaussians and a lidar
-batch every fourth step; ``idsplat-preview`` trains 1000 steps from half as many initial Gaussians.
-Both points were chosen on the measured front of docs/pareto.md (``bench/pareto.py``).
+batch every fourth step; ``idsplat-medium`` trains that model 3000 steps; ``idsplat-preview``
+trains 1000 steps from half as many initial Gaussians. The points were chosen on the measured
+front of docs/pareto.md (``bench/pareto.py``).
 """
 
 from __future__ import annotations
