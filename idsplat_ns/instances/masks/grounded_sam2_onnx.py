@@ -42,6 +42,7 @@ from idsplat_ns.instances.masks.association import IouTracker
 from idsplat_ns.instances.masks.base import PROMPT_CLASSES, InstanceMaskSet, MaskSource, write_instance_map, write_labels
 from idsplat_ns.instances.masks.bert_tokenizer import WordPieceTokenizer, caption_inputs
 from idsplat_ns.instances.onnx_session import model_identity, open_session
+from idsplat_ns.instances.options import option
 
 IMAGENET_MEAN = np.array([0.485, 0.456, 0.406], np.float32)
 IMAGENET_STD = np.array([0.229, 0.224, 0.225], np.float32)
@@ -143,9 +144,9 @@ class GroundedSam2OnnxMasks(MaskSource):
             return
         c = self.config
         self.tokenizer = WordPieceTokenizer(_required(c.tokenizer_vocab, "--masks.grounded-sam2.tokenizer-vocab"))
-        self.detector = open_session(c.detector_path, "--masks.grounded-sam2.detector-path", c.threads)
-        self.encoder = open_session(c.sam2_encoder_path, "--masks.grounded-sam2.sam2-encoder-path", c.threads)
-        self.decoder = open_session(c.sam2_decoder_path, "--masks.grounded-sam2.sam2-decoder-path", c.threads)
+        self.detector = open_session(c.detector_path, option("masks.grounded-sam2.detector-path"), c.threads)
+        self.encoder = open_session(c.sam2_encoder_path, option("masks.grounded-sam2.sam2-encoder-path"), c.threads)
+        self.decoder = open_session(c.sam2_decoder_path, option("masks.grounded-sam2.sam2-decoder-path"), c.threads)
         _check_names(self.detector, DETECTOR_INPUTS, c.detector_path, "inputs")
         _check_names(self.detector, ("logits", "boxes"), c.detector_path, "outputs")
         _check_names(self.encoder, ENCODER_OUTPUTS, c.sam2_encoder_path, "outputs")
