@@ -35,7 +35,8 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
 
-# name: (steps, {dotted model-config field: value}). Knobs move one at a time around 600 and 1000 steps.
+# name: (steps, {dotted model-config field: value}). Knobs move one at a time around 600 and 1000 steps
+# and around the presets.
 HALF_INITIAL = {"pipeline.model.num_random_points": 10_000, "pipeline.model.max_lidar_points": 30_000}
 POINTS: dict[str, tuple[int, dict]] = {
     "steps-300": (300, {}),
@@ -47,6 +48,9 @@ POINTS: dict[str, tuple[int, dict]] = {
     "steps-1000, half initial Gaussians": (1000, HALF_INITIAL),
     "steps-600, half initial Gaussians": (600, HALF_INITIAL),
     "steps-1000, Gaussian cap x1.5": (1000, {"pipeline.model.cap_factor": 1.5}),
+    # around the presets: between idsplat-fast and idsplat-medium, and idsplat-fast from fewer Gaussians
+    "steps-2000": (2000, {}),
+    "steps-1500, half initial Gaussians": (1500, HALF_INITIAL),
 }
 DEFAULT_POINTS = ["steps-300", "steps-600", "steps-1000", "steps-1500 (idsplat-fast)",
                   "steps-1000, lidar every step", "steps-1000, half initial Gaussians"]
