@@ -18,7 +18,7 @@ from rich.console import Console
 from idsplat_ns.data.scene import Scene
 from idsplat_ns.errors import IDSplatError
 from idsplat_ns.instances.masks.precomputed import PrecomputedMasksConfig
-from idsplat_ns.instances.options import option
+from idsplat_ns.instances.options import cli_option
 from idsplat_ns.instances.runner import PreprocessConfig, run_preprocessing
 from idsplat_ns.instances.tracks import InstanceTracks
 
@@ -27,15 +27,15 @@ CONSOLE = Console()
 
 
 def ground_truth_masks(scene: Scene, config: PreprocessConfig) -> PreprocessConfig:
-    """``--masks.kind ground-truth``: the built-in street's own 2D instance masks as the mask folder
+    """``masks.kind ground-truth``: the built-in street's own 2D instance masks as the mask folder
     (an ablation: perfect masks in place of a detector's). Other kinds are returned unchanged."""
     if config.masks.kind != "ground-truth":
         return config
     folder = None if scene.root is None else scene.root / "idsplat_extras" / "instance_masks"
     if folder is None or not folder.is_dir():
-        raise IDSplatError(f"{option('masks.kind')} ground-truth: {scene.root} has no idsplat_extras/instance_masks; "
+        raise IDSplatError(f"{cli_option('masks.kind')} ground-truth: {scene.root} has no idsplat_extras/instance_masks; "
                            "only the built-in street (idsplat-synth) has ground-truth masks")
-    CONSOLE.print(f"[yellow]ablation: ground-truth 2D instance masks of the built-in street ({option('masks.kind')} ground-truth), not a detector's")
+    CONSOLE.print(f"[yellow]ablation: ground-truth 2D instance masks of the built-in street ({cli_option('masks.kind')} ground-truth), not a detector's")
     pre = PrecomputedMasksConfig(mask_dir=folder, instances_json=folder.parent / "instances.json")
     return replace(config, masks=replace(config.masks, kind="precomputed", precomputed=pre))
 

@@ -6,6 +6,6 @@ from __future__ import annotations
 PREFIX = "--pipeline.datamanager.preprocess."
 
 
-def option(name: str) -> str:
+def cli_option(name: str) -> str:
     """``masks.kind`` -> ``--pipeline.datamanager.preprocess.masks.kind``."""
     return PREFIX + name

@@ -20,7 +20,7 @@ from idsplat_ns.instances.amodal_centre import AmodalCentreConfig, box_heading, 
 from idsplat_ns.instances.cache import atomic_path, hash_json, remove_stale_temporaries, scene_fingerprint
 from idsplat_ns.instances.features.base import PointFeatures
 from idsplat_ns.instances.ground import GroundSurface
-from idsplat_ns.instances.options import option
+from idsplat_ns.instances.options import cli_option
 from idsplat_ns.instances.smoothing import SmoothingConfig, smooth_trajectory
 from idsplat_ns.instances.smoothing.observability import translation_covariances
 from idsplat_ns.instances.smoothing.smoother import SmoothedTrajectory
@@ -254,7 +254,7 @@ def run_preprocessing(
     mask_kind = resolve_mask_kind(config.masks)
     if config.masks.kind == "auto" and mask_kind == "lidar-motion" and verbose:
         print("note: no Grounded-SAM-2 files and no mask folder given: instances come from lidar motion "
-              f"({option('masks.kind')} lidar-motion; docs/instances.md)")
+              f"({cli_option('masks.kind')} lidar-motion; docs/instances.md)")
     source = make_mask_source(mask_kind, config.masks)
     mask_key = hash_json({"scene": scene_key, "source": source.cache_key()})
     cached = True

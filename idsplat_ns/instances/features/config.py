@@ -11,7 +11,7 @@ from idsplat_ns.instances.features.base import PointFeatureExtractor
 from idsplat_ns.instances.features.daisy import DaisyConfig
 from idsplat_ns.instances.features.dinov3_onnx import Dinov3Config
 from idsplat_ns.instances.features.fpfh import FpfhConfig
-from idsplat_ns.instances.options import option
+from idsplat_ns.instances.options import cli_option
 
 FeatureKind = Literal["auto", "dinov3", "rgb", "daisy", "fpfh"]
 
@@ -39,7 +39,7 @@ def resolve_feature_kind(config: FeatureConfig, scene: Scene) -> str:
     if config.dinov3.model_path is not None:
         return "dinov3"
     if scene.images:
-        print(f"note: no DINOv3 model given ({option('features.dinov3.model-path')}); using DAISY descriptors for correspondences")
+        print(f"note: no DINOv3 model given ({cli_option('features.dinov3.model-path')}); using DAISY descriptors for correspondences")
         return "daisy"
     print("note: no images and no DINOv3 model; using FPFH (geometry-only) descriptors for correspondences")
     return "fpfh"
@@ -63,4 +63,4 @@ def make_feature_extractor(kind: str, config: FeatureConfig) -> PointFeatureExtr
         from idsplat_ns.instances.features.fpfh import FpfhFeatures
 
         return FpfhFeatures(config.fpfh)
-    raise IDSplatError(f"--features.kind {kind!r} is unknown; use auto, dinov3, rgb, daisy or fpfh")
+    raise IDSplatError(f"{cli_option('features.kind')} {kind!r} is unknown; use auto, dinov3, rgb, daisy or fpfh")

@@ -26,7 +26,7 @@ import numpy as np
 from idsplat_ns.errors import IDSplatError
 from idsplat_ns.instances.features.base import ImageFeatureExtractor, sample_bilinear
 from idsplat_ns.instances.onnx_session import model_identity, open_session
-from idsplat_ns.instances.options import option
+from idsplat_ns.instances.options import cli_option
 
 IMAGENET_MEAN = np.array([0.485, 0.456, 0.406], np.float32)
 IMAGENET_STD = np.array([0.229, 0.224, 0.225], np.float32)
@@ -83,21 +83,21 @@ class Dinov3OnnxFeatures(ImageFeatureExtractor):
     def __init__(self, config: Dinov3Config):
         self.config = config
         if config.model_path is None or not Path(config.model_path).is_file():
-            open_session(config.model_path, option("features.dinov3.model-path"))  # raises the one-line error
+            open_session(config.model_path, cli_option("features.dinov3.model-path"))  # raises the one-line error
         self._session = None  # loaded on first use, so cached runs never load the model
         self._output = config.output_name
 
     def _ensure_session(self):
         if self._session is None:
             c = self.config
-            self._session = open_session(c.model_path, option("features.dinov3.model-path"), c.threads)
+            self._session = open_session(c.model_path, cli_option("features.dinov3.model-path"), c.threads)
             names = [i.name for i in self._session.get_inputs()]
             if c.input_name not in names:
-                raise IDSplatError(f"{c.model_path}: no input named {c.input_name!r} (inputs: {names}); set --features.dinov3.input-name")
+                raise IDSplatError(f"{c.model_path}: no input named {c.input_name!r} (inputs: {names}); set {cli_option('features.dinov3.input-name')}")
             outputs = [o.name for o in self._session.get_outputs()]
             self._output = c.output_name or outputs[0]
             if self._output not in outputs:
-                raise IDSplatError(f"{c.model_path}: no output named {self._output!r} (outputs: {outputs}); set --features.dinov3.output-name")
+                raise IDSplatError(f"{c.model_path}: no output named {self._output!r} (outputs: {outputs}); set {cli_option('features.dinov3.output-name')}")
         return self._session
 
     def cache_key(self) -> dict:

@@ -14,6 +14,7 @@ from tokenizers import Tokenizer, normalizers, pre_tokenizers
 from tokenizers.models import WordPiece
 
 from idsplat_ns.errors import IDSplatError
+from idsplat_ns.instances.options import cli_option
 
 
 class WordPieceTokenizer:
@@ -24,7 +25,7 @@ class WordPieceTokenizer:
     def __init__(self, vocab_path: Path):
         vocab_path = Path(vocab_path)
         if not vocab_path.is_file():
-            raise IDSplatError(f"{vocab_path}: BERT vocab.txt not found; give bert-base-uncased's vocab.txt with --masks.grounded-sam2.tokenizer-vocab")
+            raise IDSplatError(f"{vocab_path}: BERT vocab.txt not found; give bert-base-uncased's vocab.txt with {cli_option('masks.grounded-sam2.tokenizer-vocab')}")
         try:
             self.vocab: dict[str, int] = WordPiece.read_file(str(vocab_path))  # token -> ID (its line)
         except Exception as exc:  # the binding raises a bare Exception (unreadable, not UTF-8)

@@ -11,6 +11,7 @@ from idsplat_ns.instances.masks.gt_boxes import GtBoxMasksConfig
 from idsplat_ns.instances.masks.grounded_sam2_onnx import GroundedSam2Config
 from idsplat_ns.instances.lidar_motion import LidarMotionConfig
 from idsplat_ns.instances.masks.precomputed import PrecomputedMasksConfig
+from idsplat_ns.instances.options import cli_option
 
 MaskKind = Literal["auto", "grounded_sam2", "precomputed", "lidar-motion", "ground-truth", "gt_boxes"]
 
@@ -66,5 +67,5 @@ def make_mask_source(kind: str, config: MaskConfig) -> MaskSource:
 
         return LidarMotionMaskSource(config.lidar_motion)
     if kind == "ground-truth":
-        raise IDSplatError("--masks.kind ground-truth: resolve it on the scene first (instances.modes.ground_truth_masks)")
-    raise IDSplatError(f"--masks.kind {kind!r} is unknown; use auto, grounded_sam2, precomputed, lidar-motion, ground-truth or gt_boxes")
+        raise IDSplatError(f"{cli_option('masks.kind')} ground-truth: resolve it on the scene first (instances.modes.ground_truth_masks)")
+    raise IDSplatError(f"{cli_option('masks.kind')} {kind!r} is unknown; use auto, grounded_sam2, precomputed, lidar-motion, ground-truth or gt_boxes")

@@ -42,7 +42,7 @@ from idsplat_ns.instances.masks.association import IouTracker
 from idsplat_ns.instances.masks.base import PROMPT_CLASSES, InstanceMaskSet, MaskSource, write_instance_map, write_labels
 from idsplat_ns.instances.masks.bert_tokenizer import WordPieceTokenizer, caption_inputs
 from idsplat_ns.instances.onnx_session import model_identity, open_session
-from idsplat_ns.instances.options import option
+from idsplat_ns.instances.options import cli_option
 
 IMAGENET_MEAN = np.array([0.485, 0.456, 0.406], np.float32)
 IMAGENET_STD = np.array([0.229, 0.224, 0.225], np.float32)
@@ -135,7 +135,7 @@ class GroundedSam2OnnxMasks(MaskSource):
         c = config
         for path, option in ((c.tokenizer_vocab, "tokenizer-vocab"), (c.detector_path, "detector-path"),
                              (c.sam2_encoder_path, "sam2-encoder-path"), (c.sam2_decoder_path, "sam2-decoder-path")):
-            _require_file(path, f"--masks.grounded-sam2.{option}")  # fail early, before any frame
+            _require_file(path, cli_option(f"masks.grounded-sam2.{option}"))  # fail early, before any frame
         self._loaded = False
 
     def _load(self) -> None:
@@ -143,10 +143,10 @@ class GroundedSam2OnnxMasks(MaskSource):
         if self._loaded:
             return
         c = self.config
-        self.tokenizer = WordPieceTokenizer(_required(c.tokenizer_vocab, "--masks.grounded-sam2.tokenizer-vocab"))
-        self.detector = open_session(c.detector_path, option("masks.grounded-sam2.detector-path"), c.threads)
-        self.encoder = open_session(c.sam2_encoder_path, option("masks.grounded-sam2.sam2-encoder-path"), c.threads)
-        self.decoder = open_session(c.sam2_decoder_path, option("masks.grounded-sam2.sam2-decoder-path"), c.threads)
+        self.tokenizer = WordPieceTokenizer(_required(c.tokenizer_vocab, cli_option("masks.grounded-sam2.tokenizer-vocab")))
+        self.detector = open_session(c.detector_path, cli_option("masks.grounded-sam2.detector-path"), c.threads)
+        self.encoder = open_session(c.sam2_encoder_path, cli_option("masks.grounded-sam2.sam2-encoder-path"), c.threads)
+        self.decoder = open_session(c.sam2_decoder_path, cli_option("masks.grounded-sam2.sam2-decoder-path"), c.threads)
         _check_names(self.detector, DETECTOR_INPUTS, c.detector_path, "inputs")
         _check_names(self.detector, ("logits", "boxes"), c.detector_path, "outputs")
         _check_names(self.encoder, ENCODER_OUTPUTS, c.sam2_encoder_path, "outputs")
@@ -259,7 +259,7 @@ def _require_file(path: Optional[Path], option: str) -> Path:
 
 def _required(path: Optional[Path], option: str) -> Path:
     if path is None:
-        raise IDSplatError(f"{option} is not set; Grounded-SAM-2 masks need it (or use --masks.kind precomputed)")
+        raise IDSplatError(f"{option} is not set; Grounded-SAM-2 masks need it (or use {cli_option('masks.kind')} precomputed)")
     return Path(path)
 
 

@@ -19,6 +19,7 @@ from idsplat_ns.data.scene import Scene
 from idsplat_ns.data.dynamic_masks import box_silhouette
 from idsplat_ns.errors import IDSplatError
 from idsplat_ns.instances.masks.base import InstanceMaskSet, MaskSource, write_instance_map, write_labels
+from idsplat_ns.instances.options import cli_option
 
 @dataclass(frozen=True)
 class GtBoxMasksConfig:
@@ -65,7 +66,7 @@ class GtBoxMaskSource(MaskSource):
 
     def generate(self, scene: Scene, out_dir: Path, progress: bool = True) -> InstanceMaskSet:
         if not scene.tracks:
-            raise IDSplatError(f"scene {scene.name} has no ground-truth tracks; --masks.kind gt_boxes needs annotations")
+            raise IDSplatError(f"scene {scene.name} has no ground-truth tracks; {cli_option('masks.kind')} gt_boxes needs annotations")
         keep = [i for i, t in enumerate(scene.tracks)
                 if t.group in self.config.groups and (t.moving or not self.config.moving_only)]
         if len(keep) >= 65535:

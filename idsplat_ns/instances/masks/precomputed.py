@@ -24,6 +24,7 @@ from typing import Optional
 from idsplat_ns.data.scene import Scene
 from idsplat_ns.errors import IDSplatError
 from idsplat_ns.instances.masks.base import INSTANCES_JSON, InstanceMaskSet, MaskSource
+from idsplat_ns.instances.options import cli_option
 
 
 @dataclass(frozen=True)
@@ -54,7 +55,7 @@ def load_mask_set(mask_dir: Path, instances_json: Optional[Path] = None, source:
     """Open a mask folder (checks the folder and the class file; PNGs are read on demand)."""
     mask_dir = Path(mask_dir)
     if not mask_dir.is_dir():
-        raise IDSplatError(f"{mask_dir}: mask folder not found; give --masks.precomputed.mask-dir a folder with <camera>/<frame:02d>.png")
+        raise IDSplatError(f"{mask_dir}: mask folder not found; give {cli_option('masks.precomputed.mask-dir')} a folder with <camera>/<frame:02d>.png")
     labels = read_labels(Path(instances_json) if instances_json else mask_dir / INSTANCES_JSON)
     return InstanceMaskSet(root=mask_dir, labels=labels, source=source)
 
@@ -76,7 +77,7 @@ class PrecomputedMaskSource(MaskSource):
 
     def __init__(self, config: PrecomputedMasksConfig):
         if config.mask_dir is None:
-            raise IDSplatError("--masks.precomputed.mask-dir is not set; give the folder of precomputed instance masks")
+            raise IDSplatError(f"{cli_option('masks.precomputed.mask-dir')} is not set; give the folder of precomputed instance masks")
         self.config = config
 
     def cache_key(self) -> dict:
