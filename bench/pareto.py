@@ -205,7 +205,8 @@ def plot(rows: list[dict], path: Path) -> None:
             ax.scatter([r["cpu_s"] / 60 for r in mine], [r[key] for r in mine], s=18 if several else 36, label=street)
             front = sorted(pareto_front(mine, key), key=lambda r: r["cpu_s"])
             ax.plot([r["cpu_s"] / 60 for r in front], [r[key] for r in front], "--", lw=1)
-            labelled += [] if several else [(r["cpu_s"] / 60, r[key], r["point"]) for r in mine]
+            if not several:
+                labelled += [(r["cpu_s"] / 60, r[key], r["point"]) for r in mine]
         means = point_means(rows, key)
         if several:
             ax.plot([m[0] / 60 for m in means.values()], [m[1] for m in means.values()], "k-o", lw=1.5, ms=5,

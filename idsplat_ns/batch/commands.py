@@ -81,6 +81,18 @@ def option_value(args: tuple[str, ...], flag: str) -> Optional[str]:
     return value
 
 
+def _option_groups(args: tuple[str, ...] | list[str], starts: tuple[str, ...] = ("--",)) -> list[list[str]]:
+    """``args`` cut before each token that begins with one of ``starts``: each group is an option (or
+    subcommand) and the values after it (tuple-valued settings take several)."""
+    groups: list[list[str]] = []
+    for token in args:
+        if not groups or token.startswith(starts):
+            groups.append([token])
+        else:
+            groups[-1].append(token)
+    return groups
+
+
 def _dataparser_tail(seq: Sequence, user: UserOptions) -> list[str]:
     """The data options: the sequence's data, protocol and own options, then the user's."""
     tail = ["--data", str(seq.data)]
@@ -110,33 +122,16 @@ def preprocess_command(seq: Sequence, user: UserOptions) -> Optional[list[str]]:
     cmd = ["idsplat-preprocess", "--instance-mode", mode]
     tail = _dataparser_tail(seq, user)
     cmd += tail[:2]  # --data
-    rest = tail[2:]
-    i = 0
-    while i < len(rest):  # keep only the selection options idsplat-preprocess shares with the dataparser
-        token = rest[i]
-        j = i + 1
-        while j < len(rest) and not rest[j].startswith("--"):
-            j += 1
-        if _flag(token) in _PREPROCESS_DATA_OPTIONS:
-            cmd += rest[i:j]
-        i = j
+    for group in _option_groups(tail[2:]):  # only the selection options idsplat-preprocess shares with the dataparser
+        if _flag(group[0]) in _PREPROCESS_DATA_OPTIONS:
+            cmd += group
     # The preprocess settings last and in the user's order: a settings subcommand
     # (pipeline.datamanager.preprocess.smoothing:none) takes the options after it, not the data's.
-    args = user.method_args
-    i = 0
-    while i < len(args):
-        token = args[i]
-        if token.startswith(_PREPROCESS_PREFIX):
-            cmd.append("--preprocess." + token[len(_PREPROCESS_PREFIX):])
-            # Values follow until the next option (tuple-valued settings take several).
-            i += 1
-            while i < len(args) and not args[i].startswith("--") and not args[i].startswith(_PREPROCESS_SUBCOMMAND):
-                cmd.append(args[i])
-                i += 1
-            continue
-        if token.startswith(_PREPROCESS_SUBCOMMAND):
-            cmd.append("preprocess." + token[len(_PREPROCESS_SUBCOMMAND):])
-        i += 1
+    for head, *values in _option_groups(user.method_args, ("--", _PREPROCESS_SUBCOMMAND)):
+        if head.startswith(_PREPROCESS_PREFIX):
+            cmd += ["--preprocess." + head[len(_PREPROCESS_PREFIX):], *values]
+        elif head.startswith(_PREPROCESS_SUBCOMMAND):
+            cmd.append("preprocess." + head[len(_PREPROCESS_SUBCOMMAND):])
     return cmd
 
 
