@@ -27,20 +27,7 @@ mkdir -p "$OUT"
 T0=$(date +%s)
 stamp() { echo "[$(( $(date +%s) - T0 )) s] $*" | tee -a "$OUT/summary.log"; }
 
-SITE=${IDSPLAT_SITE:-/tmp/site}
-WHEELS=${WHEELS:-.whl}  # "none" where the environment has the dependencies
-if [ "$WHEELS" != none ] && ls "$WHEELS"/*.whl >/dev/null 2>&1; then
-    $PY -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target "$SITE" "$WHEELS"/*.whl || exit 1
-fi
-export PYTHONPATH="$SITE:$PWD${PYTHONPATH:+:$PYTHONPATH}"
-# The project itself, for nerfstudio's entry points (method and dataparsers).
-$PY -m pip install -q --no-index --no-deps --no-build-isolation --no-cache-dir --upgrade --target "$SITE" . || exit 1
-# That build leaves build/ and an egg-info here; a stale egg-info in the working directory would
-# shadow the installed entry points (a new preset) for every Python started from it.
-rm -rf build idsplat_ns.egg-info
-stamp "installed"
-# Fail in seconds, not after the build, where this Python lacks something the run imports.
-$PY -c "import method_configs.idsplat, nerfstudio.scripts.train, nerfstudio.scripts.eval" || exit 1
+. "$(dirname "$0")/gpu_install.sh"
 
 if $PY -c 'import torch, sys; sys.exit(0 if torch.cuda.is_available() else 1)'; then
     JOBS=$(nproc); [ -n "${LIDAR_AGAINST:-}" ] && JOBS=$(( JOBS > 4 ? JOBS - 2 : JOBS ))

@@ -71,3 +71,38 @@ def test_the_plot_is_written_for_several_streets(tmp_path):
             for p, t, q in (("steps-600", 300, 22.0), ("steps-1500 (idsplat-fast)", 900, 25.0))]  # fmt: skip
     pareto.plot(rows, tmp_path / "front.png")
     assert (tmp_path / "front.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_gpu_rows_are_ranked_by_wall_time_and_show_their_device():
+    # On a GPU the CPU mostly waits on it: the front is against wall time, and the table says
+    # which card and how much of its memory.
+    pareto = _bench_pareto()
+    gpu = {"device": "NVIDIA H200", "peak_gpu_gib": 2.0}
+    rows = [{**_row("a", "quick", 100, 20.0), "wall_s": 300, **gpu},
+            {**_row("a", "slow", 200, 22.0), "wall_s": 150, **gpu}]  # fmt: skip
+    assert pareto.time_key(rows) == "wall_s" and pareto.time_key([_row("a", "p", 1, 1.0)]) == "cpu_s"
+    assert [r["point"] for r in pareto.pareto_front(rows, "psnr")] == ["slow"]  # faster in wall time and better
+    assert list(pareto.point_means(rows, "psnr")) == ["slow", "quick"]
+    header, _, line = pareto.table(rows[:1]).splitlines()
+    assert header.endswith("| device | peak_gpu_gib |") and line.endswith("| NVIDIA H200 | 2.0 |")
+    assert "device" not in pareto.table([{**_row("a", "p", 1, 1.0), "wall_s": 1}])
+
+
+def test_the_childs_device_line_joins_its_measurement():
+    import sys
+
+    pareto = _bench_pareto()
+    probe = "print('DEVICE {\"device\": \"NVIDIA H200\", \"peak_gpu_gib\": 1.5}')"
+    got = pareto.measured([sys.executable, "-c", probe], 1)
+    assert got["device"] == "NVIDIA H200" and got["peak_gpu_gib"] == 1.5 and got["rc"] == 0
+
+
+def test_import_tracks_without_a_streets_file_stops_before_any_work(tmp_path, monkeypatch, capsys):
+    import sys
+
+    pareto = _bench_pareto()
+    monkeypatch.setattr(sys, "argv", ["pareto.py", "--seeds", "7", "--work", str(tmp_path / "w"),
+                                      "--import-tracks", str(tmp_path / "tracks")])  # fmt: skip
+    with pytest.raises(SystemExit, match="synth_small_7.json; write it with idsplat-preprocess --data"):
+        pareto.main()
+    assert not (tmp_path / "w").exists()  # no street generated

@@ -115,6 +115,18 @@ def _model_with(trained, **metadata_changes):
                                     metadata=meta, device="cpu", grad_scaler=None)  # fmt: skip
 
 
+def test_the_camera_backend_option_reaches_the_scene_model(trained):
+    from dataclasses import replace
+
+    trainer, cfg, _ = trained
+    assert trainer.pipeline.model.scene_model.camera_backend == "auto"
+    dm = trainer.pipeline.datamanager
+    model = replace(cfg.pipeline.model, camera_backend="torch").setup(
+        scene_box=dm.train_dataset.scene_box, num_train_data=len(dm.train_dataset),
+        metadata=dm.train_dataset.metadata, device="cpu", grad_scaler=None)  # fmt: skip
+    assert model.scene_model.camera_backend == "torch"
+
+
 def test_summary_json_is_written_before_training_and_with_the_last_checkpoint(trained):
     trainer, _, before = trained
     model = trainer.pipeline.model

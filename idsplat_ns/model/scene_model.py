@@ -59,15 +59,18 @@ class SceneModel(nn.Module):
                  trajectories: Optional[nn.Module] = None, background=(0.5, 0.5, 0.5), *,
                  lidar_head_hidden: Optional[int] = None, camera_time_offsets: bool = False,
                  embedded_sensors: Optional[Sequence[int]] = None, view_directions: bool = False,
-                 deformation: Optional[nn.Module] = None) -> None:
+                 deformation: Optional[nn.Module] = None, camera_backend: str = "auto") -> None:
         """``lidar_head_hidden``: hidden width of the lidar head (None: no lidar head, camera-only
         scene). ``camera_time_offsets``: learn a time offset per camera (only with trajectories).
         ``embedded_sensors``: the sensor indices (of ``num_sensors``) that get an embedding and a
         time offset, in row order (None: all). ``view_directions``: the RGB decoder also takes
         each pixel's world-frame ray direction (view-dependent colour). ``deformation``: an
         :class:`~idsplat_ns.model.deformation.InstanceDeformation` for non-rigid instances (None:
-        every instance rigid)."""
+        every instance rigid). ``camera_backend``: ``rasterize_camera``'s (auto, gsplat or torch)."""
         super().__init__()
+        if camera_backend not in ("auto", "gsplat", "torch"):
+            raise ValueError(f"SceneModel: camera_backend {camera_backend!r}; use 'auto', 'gsplat' or 'torch'")
+        self.camera_backend = camera_backend
         self.decoder_config = decoder
         self.gaussians = gaussians
         self.trajectories = trajectories
@@ -192,6 +195,7 @@ class SceneModel(nn.Module):
             g["means"], g["quats"], g["scales"], g["opacities"], feats, viewmat[None], K[None], width, height,
             # per-instance maps cost a compositing channel each: only when instances exist
             instance_ids=g["instance_ids"] if self.has_instances else None, motion=motion,
+            backend=self.camera_backend,
         )
         alpha = out.alpha[0]
         background = torch.sigmoid(self.background)

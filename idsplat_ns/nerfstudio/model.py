@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Dict, List, Optional, Tuple, Type
+from typing import Dict, List, Literal, Optional, Tuple, Type
 
 import numpy as np
 import torch
@@ -113,6 +113,10 @@ class IDSplatModelConfig(ModelConfig):
     """View-dependent colour: the RGB decoder also takes each pixel's world-frame ray direction, as
     in SplatAD, whose decoder the paper adopts (False: the ablation; a checkpoint keeps the choice
     it was trained with)."""
+    camera_backend: Literal["auto", "gsplat", "torch"] = "auto"
+    """Camera rasterizer: ``auto`` (gsplat on CUDA where it is installed, else the pure-torch tile
+    rasterizer), ``gsplat`` (CUDA only; compiled on first use, minutes) or ``torch`` (any device:
+    a GPU run with no time to compile gsplat). The image is the same up to float rounding."""
 
 
 class IDSplatModel(Model):
@@ -154,6 +158,7 @@ class IDSplatModel(Model):
             camera_time_offsets=self.config.learn_camera_time_offsets,
             embedded_sensors=[i for i, name in enumerate(self.camera_names) if name in self.used_cameras],
             view_directions=self.config.view_directions, deformation=self._deformation(trajectories, tracks),
+            camera_backend=self.config.camera_backend,
         )
         self.shutters = ShutterLookup(scene.images, self.camera_names) if self.config.rolling_shutter else None
         self.lidar = LidarSupervisor(lidar_sweeps, self.config.lidar, seed=self.config.init_seed) if lidar_sweeps else None
