@@ -54,6 +54,26 @@ def test_round_trip_restores_poses_validity_and_points(scene_and_tracks, tmp_pat
         assert np.array_equal(b.point_counts[a.valid], a.point_counts[a.valid])
 
 
+def test_canonical_colours_survive_the_round_trip_and_are_optional(scene_and_tracks, tmp_path):
+    # Self-supervised tracks carry each point's colour, which the instance Gaussians start from:
+    # a re-imported file must give them back, and a file without them still imports (None:
+    # colours are then projected from the images).
+    from dataclasses import replace
+
+    scene, tracks = scene_and_tracks
+    rng = np.random.default_rng(0)
+    coloured = replace(tracks, instances=[
+        replace(i, canonical_colors=rng.integers(0, 256, (len(i.canonical_points), 3)).astype(np.uint8))
+        for i in tracks.instances])  # fmt: skip
+    write_tracks_json(tmp_path / "coloured.json", coloured, scene)
+    back = tracks_from_json(tmp_path / "coloured.json", scene)
+    for a, b in zip(coloured.instances, back.instances):
+        assert b.canonical_colors.dtype == np.uint8 and np.array_equal(b.canonical_colors, a.canonical_colors)
+    assert "canonical_colors" not in tracks_to_json(tracks, scene)["instances"][0]
+    write_tracks_json(tmp_path / "plain.json", tracks, scene)
+    assert all(i.canonical_colors is None for i in tracks_from_json(tmp_path / "plain.json", scene).instances)
+
+
 def test_import_interpolates_between_times_and_finds_points_in_a_box(scene_and_tracks, tmp_path):
     scene, tracks = scene_and_tracks
     data = tracks_to_json(tracks, scene)
@@ -88,6 +108,10 @@ def test_import_interpolates_between_times_and_finds_points_in_a_box(scene_and_t
     ('{"instances": [{"id": 1, "times": [1, 0], "poses": [%s, %s], "size": [1, 1, 1]}]}' % ((str(np.eye(4).tolist()),) * 2), "increase strictly"),
     ('{"instances": [{"id": 1, "times": [0], "poses": [[1, 2]]}]}', "shape \\[N, 4, 4\\]"),
     ('{"instances": [{"id": 1, "times": [0], "poses": [%s]}]}' % str(np.eye(4).tolist()), "canonical_points' or a box 'size'"),
+    ('{"instances": [{"id": 1, "times": [0], "poses": [%s], "canonical_points": [[0, 0, 0], [1, 0, 0]], '
+     '"canonical_colors": [[0, 0, 0]]}]}' % str(np.eye(4).tolist()), "one \\[r, g, b\\] in 0-255 per canonical point \\(2\\), got 1"),
+    ('{"instances": [{"id": 1, "times": [0], "poses": [%s], "canonical_points": [[0, 0, 0]], '
+     '"canonical_colors": [[0, 0, 300]]}]}' % str(np.eye(4).tolist()), "in 0-255"),
 ])
 def test_bad_tracks_files_fail_in_one_line_naming_the_file(scene_and_tracks, tmp_path, content, match):
     scene, _ = scene_and_tracks

@@ -9,6 +9,7 @@ Layout (``idsplat-preprocess --export``; ``--pipeline.datamanager.import-tracks`
                     "num_points": [lidar points seen at each time],
                     "measured": [true where a registration measured the pose],
                     "canonical_points": [[x, y, z], ...]      (optional)
+                    "canonical_colors": [[r, g, b], ...]      (optional: 0-255, one per canonical point)
                     "size": [length, width, height]}]}        (optional; used when there are no points)
 
 ``label`` is the raw class name (detector prompt, annotation label or the lidar-motion guess);
@@ -18,6 +19,8 @@ export and, on import, used as the label of an entry that has no ``label``.
 On import an instance is placed at each frame of the scene inside its time span (translation
 interpolated linearly, rotation by slerp) and is absent outside it. Its points are the listed
 canonical points, or else the lidar points inside a box of ``size`` around its canonical origin.
+Their colours (the first colours of the instance's Gaussians) are the listed canonical colours, or
+else projected from the training images, as for tracks that have none.
 """
 
 from __future__ import annotations
@@ -61,6 +64,8 @@ def tracks_to_json(tracks: InstanceTracks, scene: Scene) -> dict:
             "measured": [bool(measured[k]) for k in keep],
             "canonical_points": np.round(inst.canonical_points, 4).tolist(),
         })
+        if inst.canonical_colors is not None:  # what the Gaussians start from: a re-import trains the same
+            out[-1]["canonical_colors"] = np.clip(np.round(inst.canonical_colors), 0, 255).astype(int).tolist()
     return {"format": FORMAT, "sequence": scene.name, "world": "dataset", "instances": out}
 
 
@@ -139,8 +144,15 @@ def tracks_from_json(path: Path, scene: Scene) -> InstanceTracks:
             poses[:, :3, :3] = rot.as_matrix()
             for axis in range(3):
                 poses[:, axis, 3] = np.interp(t_clamped, times, poses_w[:, axis, 3])
+        colors = None
         if "canonical_points" in entry:
             points = _field(entry, "canonical_points", where, (3,))
+            if "canonical_colors" in entry:
+                colors = _field(entry, "canonical_colors", where, (3,))
+                if len(colors) != len(points) or colors.min(initial=0) < 0 or colors.max(initial=0) > 255:
+                    raise IDSplatError(f"{where}: 'canonical_colors' must be one [r, g, b] in 0-255 per canonical point "
+                                       f"({len(points)}), got {len(colors)}")  # fmt: skip
+                colors = np.round(colors).astype(np.uint8)
             counts = np.zeros(len(frame_times), dtype=np.int64)
             if "num_points" in entry:
                 listed = _field(entry, "num_points", where, ())
@@ -155,7 +167,7 @@ def tracks_from_json(path: Path, scene: Scene) -> InstanceTracks:
             continue  # outside the frames loaded
         instances.append(InstanceTrack(
             instance_id=int(entry["id"]), label=str(entry.get("label", entry.get("class", "object"))), canonical_points=points,
-            canonical_colors=None, poses=poses, valid=valid, point_counts=counts, fitness=valid.astype(np.float64),
+            canonical_colors=colors, poses=poses, valid=valid, point_counts=counts, fitness=valid.astype(np.float64),
             canonical_frame=int(np.argmax(np.where(valid, counts, -1))),
         ))
     return InstanceTracks(np.asarray(scene.frame_indices), frame_times, instances, [],
