@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 import torch
 
+from idsplat_ns.errors import IDSplatError
 from idsplat_ns.instances.static_conversion import StaticConversionConfig, static_reason
 from idsplat_ns.instances.tracks import InstanceTrack
 from idsplat_ns.model.gaussians import GaussianSet
@@ -116,8 +117,6 @@ def _model_with(trained, **metadata_changes):
 
 
 def test_the_camera_backend_option_reaches_the_scene_model(trained):
-    from dataclasses import replace
-
     trainer, cfg, _ = trained
     assert trainer.pipeline.model.scene_model.camera_backend == "auto"
     dm = trainer.pipeline.datamanager
@@ -125,6 +124,10 @@ def test_the_camera_backend_option_reaches_the_scene_model(trained):
         scene_box=dm.train_dataset.scene_box, num_train_data=len(dm.train_dataset),
         metadata=dm.train_dataset.metadata, device="cpu", grad_scaler=None)  # fmt: skip
     assert model.scene_model.camera_backend == "torch"
+    with pytest.raises(IDSplatError, match="camera-backend gsplat needs a CUDA device .* use auto or torch"):
+        replace(cfg.pipeline.model, camera_backend="gsplat").setup(
+            scene_box=dm.train_dataset.scene_box, num_train_data=len(dm.train_dataset),
+            metadata=dm.train_dataset.metadata, device="cpu", grad_scaler=None)  # fmt: skip
 
 
 def test_summary_json_is_written_before_training_and_with_the_last_checkpoint(trained):
