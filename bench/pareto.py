@@ -26,7 +26,7 @@ with the pure-torch camera rasterizer where gsplat has not been compiled:
 
     python bench/pareto.py --seeds 100 --import-tracks tracks --camera-backend torch --points "steps-1500 (idsplat-fast)"
 
-Results are stored per (street, point) in ``WORK/<street>/<point>/``; a point whose eval.json
+Results are stored per (street, point) in ``WORK/<street>/<point>/``; a point whose result.json
 exists is read, not trained again.
 """
 
@@ -64,6 +64,10 @@ POINTS: dict[str, tuple[int, dict]] = {
     # around the presets: between idsplat-fast and idsplat-medium, and idsplat-fast from fewer Gaussians
     "steps-2000": (2000, {}),
     "steps-1500, half initial Gaussians": (1500, HALF_INITIAL),
+    # the resolution schedule of idsplat-fast ((300, 700): 1/4 size, then 1/2, full from step 700)
+    # moved both ways: full size from the first step, and each size held twice as long
+    "steps-1500, full resolution throughout": (1500, {"pipeline.model.resolution_schedule": ()}),
+    "steps-1500, resolution schedule x2": (1500, {"pipeline.model.resolution_schedule": (600, 1400)}),
 }
 DEFAULT_POINTS = ["steps-300", "steps-600", "steps-1000", "steps-1500 (idsplat-fast)",
                   "steps-1000, lidar every step", "steps-1000, half initial Gaussians"]
