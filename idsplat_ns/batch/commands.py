@@ -16,6 +16,7 @@ from typing import Optional
 
 from idsplat_ns.batch.sequences import Sequence
 from idsplat_ns.errors import IDSplatError
+from idsplat_ns.instances.options import PREFIX as _PREPROCESS_PREFIX  # how ns-train spells a preprocessing setting
 
 DATAPARSERS = ("idsplat-auto", "idsplat-pandaset", "idsplat-waymo")
 """Dataparser subcommands a batch can drive (each takes --data and --protocol)."""
@@ -29,8 +30,7 @@ starts from: the run's latest); given by the user they are refused."""
 # selection and the split (the image scale does not change its input: it reads full-size images).
 _PREPROCESS_DATA_OPTIONS = ("--segment", "--context-name", "--protocol", "--cameras", "--start-frame", "--end-frame",
                             "--train-fraction", "--eval-every", "--lidars", "--second-return", "--lidar-sensors")
-_PREPROCESS_PREFIX = "--pipeline.datamanager.preprocess."
-_PREPROCESS_SUBCOMMAND = "pipeline.datamanager.preprocess."  # a settings subcommand, e.g. ...smoothing:none
+_PREPROCESS_SUBCOMMAND = _PREPROCESS_PREFIX[2:]  # a settings subcommand, e.g. ...smoothing:none
 _INSTANCE_MODE = "--pipeline.datamanager.instance-mode"
 
 

@@ -34,6 +34,7 @@ from idsplat_ns.model.gaussians import GaussianSet
 from idsplat_ns.model.lidar_head import LidarHead, LidarHeadOutput
 from idsplat_ns.model.lidar_render import LidarRayBatch, render_lidar_rays
 from idsplat_ns.render import LidarRender, rasterize_camera
+from idsplat_ns.render.camera import CAMERA_BACKENDS
 
 
 @dataclass
@@ -68,7 +69,7 @@ class SceneModel(nn.Module):
         :class:`~idsplat_ns.model.deformation.InstanceDeformation` for non-rigid instances (None:
         every instance rigid). ``camera_backend``: ``rasterize_camera``'s (auto, gsplat or torch)."""
         super().__init__()
-        if camera_backend not in ("auto", "gsplat", "torch"):
+        if camera_backend not in CAMERA_BACKENDS:
             raise ValueError(f"SceneModel: camera_backend {camera_backend!r}; use 'auto', 'gsplat' or 'torch'")
         self.camera_backend = camera_backend
         self.decoder_config = decoder

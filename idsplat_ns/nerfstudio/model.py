@@ -122,9 +122,9 @@ class IDSplatModelConfig(ModelConfig):
 
 def check_camera_backend(backend: str, device: torch.device) -> None:
     """Refuse, before any loading, a camera backend the training device cannot run."""
-    import importlib.util
+    from idsplat_ns.render.camera import _gsplat_available  # the test rasterize_camera's auto makes
 
-    if backend == "gsplat" and (device.type != "cuda" or importlib.util.find_spec("gsplat") is None):
+    if backend == "gsplat" and (device.type != "cuda" or not _gsplat_available()):
         raise IDSplatError(f"--pipeline.model.camera-backend gsplat needs a CUDA device and the gsplat package "
                            f"(training on {device.type}); use auto or torch")  # fmt: skip
 

@@ -66,6 +66,9 @@ def _check_motion(motion: CameraMotion, n: int, c: int) -> None:
             raise IDSplatError(f"rasterize_camera: motion.{name} has shape {tuple(x.shape)}, expected {shape}")
 
 
+CAMERA_BACKENDS = ("auto", "torch", "gsplat")
+
+
 def _gsplat_available() -> bool:
     return importlib.util.find_spec("gsplat") is not None
 
@@ -112,7 +115,7 @@ def rasterize_camera(
         _check_motion(motion, means.shape[0], viewmats.shape[0])
         if motion.is_global():
             motion = None  # exactly the global-shutter path
-    if backend not in ("auto", "torch", "gsplat"):
+    if backend not in CAMERA_BACKENDS:
         raise IDSplatError(f"rasterize_camera: backend={backend!r}; use 'auto', 'torch' or 'gsplat'")
     if backend == "auto":
         backend = "gsplat" if means.is_cuda and _gsplat_available() else "torch"
