@@ -116,7 +116,7 @@ def _model_with(trained, **metadata_changes):
                                     metadata=meta, device="cpu", grad_scaler=None)  # fmt: skip
 
 
-def test_the_camera_backend_option_reaches_the_scene_model(trained):
+def test_the_camera_backend_option_reaches_the_scene_model(trained, tmp_path):
     trainer, cfg, _ = trained
     assert trainer.pipeline.model.scene_model.camera_backend == "auto"
     dm = trainer.pipeline.datamanager
@@ -124,10 +124,12 @@ def test_the_camera_backend_option_reaches_the_scene_model(trained):
         scene_box=dm.train_dataset.scene_box, num_train_data=len(dm.train_dataset),
         metadata=dm.train_dataset.metadata, device="cpu", grad_scaler=None)  # fmt: skip
     assert model.scene_model.camera_backend == "torch"
+    # gsplat on the CPU is refused with the other settings checks, before anything is read or written
+    on_cpu = replace(cfg, output_dir=tmp_path / "runs", machine=replace(cfg.machine, device_type="cpu"),
+                     pipeline=replace(cfg.pipeline, model=replace(cfg.pipeline.model, camera_backend="gsplat")))  # fmt: skip
     with pytest.raises(IDSplatError, match="camera-backend gsplat needs a CUDA device .* use auto or torch"):
-        replace(cfg.pipeline.model, camera_backend="gsplat").setup(
-            scene_box=dm.train_dataset.scene_box, num_train_data=len(dm.train_dataset),
-            metadata=dm.train_dataset.metadata, device="cpu", grad_scaler=None)  # fmt: skip
+        on_cpu.save_config()
+    assert not (tmp_path / "runs").exists()
 
 
 def test_summary_json_is_written_before_training_and_with_the_last_checkpoint(trained):

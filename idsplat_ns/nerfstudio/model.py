@@ -25,7 +25,6 @@ from rich.console import Console
 from torch import Tensor, nn
 
 from idsplat_ns.data.images import load_rgb
-from idsplat_ns.errors import IDSplatError
 from idsplat_ns.eval.image_metrics import psnr, ssim
 from idsplat_ns.instances.static_conversion import StaticConversionConfig, convert_static_instances
 from idsplat_ns.model.camera_shutter import ShutterLookup
@@ -120,15 +119,6 @@ class IDSplatModelConfig(ModelConfig):
     a GPU run with no time to compile gsplat). The image is the same up to float rounding."""
 
 
-def check_camera_backend(backend: str, device: torch.device) -> None:
-    """Refuse, before any loading, a camera backend the training device cannot run."""
-    from idsplat_ns.render.camera import _gsplat_available  # the test rasterize_camera's auto makes
-
-    if backend == "gsplat" and (device.type != "cuda" or not _gsplat_available()):
-        raise IDSplatError(f"--pipeline.model.camera-backend gsplat needs a CUDA device and the gsplat package "
-                           f"(training on {device.type}); use auto or torch")  # fmt: skip
-
-
 class IDSplatModel(Model):
     """nerfstudio adapter around :class:`~idsplat_ns.model.scene_model.SceneModel`."""
 
@@ -138,8 +128,6 @@ class IDSplatModel(Model):
         super().populate_modules()
         check_render_tools()  # ns-render without ffmpeg: one line now, not after loading and rendering
         metadata = self.kwargs.get("metadata", {})
-        if metadata.get("test_mode", "val") == "val":
-            check_camera_backend(self.config.camera_backend, torch.device(self.kwargs.get("device", "cpu")))
         scene = metadata["scene"]
         self.camera_names: List[str] = list(metadata["camera_names"])
         tracks = metadata.get("instance_tracks")

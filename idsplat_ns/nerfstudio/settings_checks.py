@@ -44,6 +44,17 @@ class Range:
         return f"{kind} in {'(' if self.low_open or self.low is None else '['}{lo}, {hi}{')' if self.high_open or self.high is None else ']'}"
 
 
+def check_camera_backend(backend: str, device_type: str) -> None:
+    """Refuse a camera backend the training device cannot run (``--machine.device-type``)."""
+    if backend != "gsplat":
+        return
+    from idsplat_ns.render.camera import _gsplat_available  # the test rasterize_camera's auto makes; imports torch
+
+    if device_type != "cuda" or not _gsplat_available():
+        raise IDSplatError(f"--pipeline.model.camera-backend gsplat needs a CUDA device and the gsplat package "
+                           f"(training on {device_type}); use auto or torch")  # fmt: skip
+
+
 POSITIVE = Range(0, low_open=True)
 NON_NEGATIVE = Range(0)
 AT_LEAST_ONE = Range(1, integer=True)

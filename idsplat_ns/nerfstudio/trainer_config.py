@@ -3,7 +3,8 @@
 ``ns-train`` calls ``config.save_config()`` (which creates the run folder and its config.yml)
 before it reads any data, and that is the first thing it does with the parsed options. So this
 override is the earliest point where the project sees the final settings: it checks every numeric
-option's range (one line naming the option, :mod:`idsplat_ns.nerfstudio.settings_checks`) and
+option's range and that the camera backend can run on the training device (one line naming the
+option, :mod:`idsplat_ns.nerfstudio.settings_checks`) and
 registers the new run folder so that a run failing before its first checkpoint leaves nothing
 behind (:func:`idsplat_ns.errors.register_run_dir`).
 """
@@ -17,7 +18,7 @@ from nerfstudio.engine.trainer import TrainerConfig
 
 from idsplat_ns.errors import register_run_dir
 from idsplat_ns.nerfstudio.config_defaults import FillsMissingFieldsOnLoad
-from idsplat_ns.nerfstudio.settings_checks import validate_settings
+from idsplat_ns.nerfstudio.settings_checks import check_camera_backend, validate_settings
 
 
 @dataclass
@@ -29,6 +30,7 @@ class IDSplatTrainerConfig(FillsMissingFieldsOnLoad, TrainerConfig):
 
     def save_config(self) -> None:
         validate_settings(self)
+        check_camera_backend(self.pipeline.model.camera_backend, self.machine.device_type)
         base_dir = self.get_base_dir()
         created = not base_dir.exists()  # an existing folder (a fixed --timestamp) is not ours to remove
         super().save_config()
