@@ -10,6 +10,11 @@ that load on the machine falls on both alike. Quote the medians and their ratio.
     .venv/bin/python bench/bench_lidar_render.py --against HEAD~1 --threads 1
     .venv/bin/python bench/bench_lidar_render.py --method idsplat --seed 100 --against v0 --out T.md
 
+``--compositors torch triton`` times lidar compositors of one engine beside each other instead
+(one model, the compositors alternating batch round by batch round), e.g. on a GPU machine::
+
+    python bench/bench_lidar_render.py --method idsplat --seed 100 --compositors torch triton --rounds 2
+
 Without git history (a GPU machine), pass the other revision as a source tree made here:
 ``git archive REV idsplat_ns | tar -x -C .prev`` and ``--against-tree .prev``. The other revision's
 engine (``idsplat_ns``) runs with this checkout's presets either way.
@@ -38,7 +43,8 @@ def _sync() -> None:
 
 
 def child(args: argparse.Namespace) -> None:
-    """Build the model, then time ``--batches`` lidar batches after ``--warmup`` untimed ones."""
+    """Build the model, then time ``--batches`` lidar batches after ``--warmup`` untimed ones, for
+    each lidar compositor in turn, ``--inner-rounds`` times (one model: its setup is paid once)."""
     import torch
 
     torch.set_num_threads(args.threads)
@@ -46,30 +52,33 @@ def child(args: argparse.Namespace) -> None:
     model = trainer.pipeline.model
     if model.lidar is None:
         raise SystemExit(f"bench_lidar_render.py: street {args.preset} {args.seed} has no lidar")
-    forward, both = [], []
-    for i in range(args.warmup + args.batches):
-        rays, pose = model.lidar.sample(model.device)
-        _sync()
-        t0 = time.perf_counter()
-        out = model.lidar.render_batch(model.scene_model, rays, pose)
-        loss = sum(model.lidar.losses(out).values())
-        _sync()
-        t1 = time.perf_counter()
-        loss.backward()
-        _sync()
-        t2 = time.perf_counter()
-        model.zero_grad(set_to_none=True)
-        if i >= args.warmup:
-            forward.append(t1 - t0)
-            both.append(t2 - t0)
-    print("RESULT " + json.dumps({"forward": forward, "both": both, "rays": rays.num_rays,
-                                  "gaussians": int(model.gaussians.num)}))  # fmt: skip
+    times = {c: {"forward": [], "both": []} for c in args.compositors}
+    rays = None
+    for _ in range(args.inner_rounds):
+        for comp in args.compositors:
+            model.lidar.config.compositor = comp
+            for i in range(args.warmup + args.batches):
+                rays, pose = model.lidar.sample(model.device)
+                _sync()
+                t0 = time.perf_counter()
+                out = model.lidar.render_batch(model.scene_model, rays, pose)
+                loss = sum(model.lidar.losses(out).values())
+                _sync()
+                t1 = time.perf_counter()
+                loss.backward()
+                _sync()
+                t2 = time.perf_counter()
+                model.zero_grad(set_to_none=True)
+                if i >= args.warmup:
+                    times[comp]["forward"].append(t1 - t0)
+                    times[comp]["both"].append(t2 - t0)
+    print("RESULT " + json.dumps({"times": times, "rays": rays.num_rays, "gaussians": int(model.gaussians.num)}))
 
 
-def run_child(tree: Path, args: argparse.Namespace, work: Path) -> dict:
+def run_child(tree: Path, args: argparse.Namespace, work: Path, inner_rounds: int) -> dict:
     cmd = [__file__, "--child", "--method", args.method, "--preset", args.preset, "--seed", str(args.seed),
            "--threads", str(args.threads), "--warmup", str(args.warmup), "--batches", str(args.batches),
-           "--work", str(work)]  # fmt: skip
+           "--work", str(work), "--inner-rounds", str(inner_rounds), "--compositors", *args.compositors]  # fmt: skip
     return revisions.run_child("bench_lidar_render.py", cmd, tree, args.threads)
 
 
@@ -87,6 +96,9 @@ def main() -> None:
     ap.add_argument("--against-tree", type=Path, default=None,
                     help="a source tree with idsplat_ns/ (e.g. from `git archive`) whose engine to time beside "
                          "the working tree's, where there is no git history (a GPU machine)")
+    ap.add_argument("--compositors", nargs="+", default=["auto"], choices=["auto", "compiled", "torch", "triton"],
+                    help="lidar compositors to time in turn, each a row (one model per revision)")
+    ap.add_argument("--inner-rounds", type=int, default=1, help=argparse.SUPPRESS)
     ap.add_argument("--work", type=Path, default=Path("/tmp/idsplat-bench-lidar"))
     ap.add_argument("--out", type=Path, default=None, help="also write the markdown table here")
     args = ap.parse_args()
@@ -94,20 +106,27 @@ def main() -> None:
         child(args)
         return
     trees = revisions.trees("bench_lidar_render.py", args.against, args.against_tree)
-    times: dict[str, dict[str, list[float]]] = {name: {"forward": [], "both": []} for name in trees}
+    # One revision: its compositors alternate inside one child (the model is built once); several:
+    # the revisions alternate, a child each round.
+    outer, inner = (1, args.rounds) if len(trees) == 1 else (args.rounds, 1)
+    times: dict[str, dict[str, list[float]]] = {}
     info = {}
-    for r in range(args.rounds):
+    for r in range(outer):
         for name, tree in trees.items():
-            res = run_child(tree, args, args.work / name.replace(" ", "_").replace("/", "_") / str(r))
-            times[name]["forward"] += res["forward"]
-            times[name]["both"] += res["both"]
+            res = run_child(tree, args, args.work / name.replace(" ", "_").replace("/", "_") / str(r), inner)
             info = res
-            print(f"round {r + 1}: {name}: forward {statistics.median(res['forward']):.3f} s, "
-                  f"forward+backward {statistics.median(res['both']):.3f} s", flush=True)  # fmt: skip
-    base = statistics.median(times["working tree"]["both"])
+            for comp, t in res["times"].items():
+                row = name if len(args.compositors) == 1 else f"{name}, {comp} compositor"
+                times.setdefault(row, {"forward": [], "both": []})
+                times[row]["forward"] += t["forward"]
+                times[row]["both"] += t["both"]
+                print(f"round {r + 1}: {row}: forward {statistics.median(t['forward']):.3f} s, "
+                      f"forward+backward {statistics.median(t['both']):.3f} s", flush=True)  # fmt: skip
+    first = next(iter(times))
+    base = statistics.median(times[first]["both"])
     lines = [f"{args.method}, street {args.preset} {args.seed}, {info['gaussians']:,} Gaussians, {info['rays']:,} rays "
              f"a batch, {args.threads} thread(s), medians of {args.rounds} x {args.batches} batches", "",
-             "| revision | forward s | forward+backward s | time against the working tree |", "|---|---|---|---|"]  # fmt: skip
+             f"| engine | forward s | forward+backward s | time against {first} |", "|---|---|---|---|"]  # fmt: skip
     for name, t in times.items():
         both = statistics.median(t["both"])
         lines.append(f"| {name} | {statistics.median(t['forward']):.3f} | {both:.3f} | {both / base:.2f}x |")

@@ -2,9 +2,17 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
+import torch
+
+# Triton's interpreter runs the CUDA compositor's kernels on CPU tensors (tests/test_triton_composite.py).
+# It must be on before Triton is first imported anywhere (transformers imports it while test modules
+# are collected), since Triton decides how its own library functions run when it is imported.
+if not torch.cuda.is_available():
+    os.environ.setdefault("TRITON_INTERPRET", "1")
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = REPO.parent / "shared" / "data"

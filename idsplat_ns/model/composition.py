@@ -104,17 +104,21 @@ def compose_gaussians(
         means_w, quats_w = means, quats
     else:
         r = row.clamp_min(0)  # absent or unknown rows are posed with row 0's pose, then dropped
-        R, t = traj_R[r], traj_t[r]  # one pose per instance Gaussian (only those, not all N)
+        # One pose per instance Gaussian (only those, not all N). index_select, not traj_R[r]: the
+        # backward of advanced indexing sorts M indices that hold only Z values, which CUDA then
+        # accumulates one after another (about 3 ms a call at 63,000 instance Gaussians on an H200).
+        R, t = traj_R.index_select(0, r), traj_t.index_select(0, r)
         moved_means = canonical_to_world(means.index_select(0, dyn), R, t)
         # q(R) once per trajectory, then gathered: cheaper than converting N matrices.
-        moved_quats = quat_multiply(rotmat_to_quat(traj_R)[r], quats.index_select(0, dyn))
+        moved_quats = quat_multiply(rotmat_to_quat(traj_R).index_select(0, r), quats.index_select(0, dyn))
         means_w = means.index_put((dyn,), moved_means)
         quats_w = quats.index_put((dyn,), moved_quats)
     if bool(here.all()):
         return means_w, quats_w, keep
     keep[dyn] = here
-    if drop:
-        means_w, quats_w = means_w[keep], quats_w[keep]
+    if drop:  # index_select: see SceneModel.posed_gaussians
+        rows = torch.nonzero(keep).squeeze(1)
+        means_w, quats_w = means_w.index_select(0, rows), quats_w.index_select(0, rows)
     return means_w, quats_w, keep
 
 

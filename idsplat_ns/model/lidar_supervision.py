@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Callable, Optional
+from typing import Callable, Literal, Optional
 
 import numpy as np
 import torch
@@ -54,6 +54,10 @@ class LidarConfig:
     """Evaluate on at most this many rays of each held-out sweep (None: every ray)."""
     drop_threshold: float = 0.5
     """A ray is predicted dropped when its ray-drop probability is at least this (metrics, point cloud)."""
+    compositor: Literal["auto", "compiled", "torch", "triton"] = "auto"
+    """Lidar tile compositor: ``auto`` (compiled loops on the CPU, Triton kernels on CUDA where Triton
+    is installed, else torch), ``compiled`` (CPU), ``triton`` (CUDA) or ``torch`` (tensor ops, any
+    device). The rays render the same up to float rounding."""
 
     def rasterizer_kwargs(self) -> dict:
         return {
@@ -61,6 +65,7 @@ class LidarConfig:
             "elevation_resolution": math.radians(self.elevation_resolution_deg),
             "near_plane": self.near_plane,
             "far_plane": self.far_plane,
+            "compositor": self.compositor,
         }
 
 

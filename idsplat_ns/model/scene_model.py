@@ -72,6 +72,8 @@ class SceneModel(nn.Module):
         if camera_backend not in CAMERA_BACKENDS:
             raise ValueError(f"SceneModel: camera_backend {camera_backend!r}; use 'auto', 'gsplat' or 'torch'")
         self.camera_backend = camera_backend
+        # The tile rasterizer's compositor (``rasterize_camera``'s ``compositor``); benches switch it.
+        self.camera_compositor = "auto"
         self.decoder_config = decoder
         self.gaussians = gaussians
         self.trajectories = trajectories
@@ -150,8 +152,8 @@ class SceneModel(nn.Module):
         if self.trajectories is None:  # a static scene: nothing to pose or drop
             return g | {"instance_ids": ids}
         if time is None:  # without a time only the static background is defined
-            keep = ids == 0
-            return {k: v[keep] for k, v in g.items()} | {"instance_ids": ids[keep]}
+            rows = torch.nonzero(ids == 0).squeeze(1)
+            return {k: v.index_select(0, rows) for k, v in g.items()} | {"instance_ids": ids.index_select(0, rows)}
         from idsplat_ns.model.composition import compose_gaussians, gaussian_velocities
 
         traj_ids = self.trajectories.instance_ids
@@ -169,7 +171,11 @@ class SceneModel(nn.Module):
             if not everyone:  # absent instances stay, transparent
                 out["opacities"] = g["opacities"] * keep
         else:
-            out = {k: v[keep] for k, v in g.items() if k not in ("means", "quats")} | {"instance_ids": ids[keep]}
+            # index_select, not a boolean mask: the mask's backward is an accumulating index_put
+            # (a sort of all N rows on CUDA), index_select's one index_add.
+            rows = torch.nonzero(keep).squeeze(1)
+            out = {k: v.index_select(0, rows) for k, v in g.items() if k not in ("means", "quats")}
+            out["instance_ids"] = ids.index_select(0, rows)
         out = out | {"means": means, "quats": quats}
         if with_velocities:
             velocities = gaussian_velocities(means, out["instance_ids"], t, linear, angular, traj_ids)
@@ -196,7 +202,7 @@ class SceneModel(nn.Module):
             g["means"], g["quats"], g["scales"], g["opacities"], feats, viewmat[None], K[None], width, height,
             # per-instance maps cost a compositing channel each: only when instances exist
             instance_ids=g["instance_ids"] if self.has_instances else None, motion=motion,
-            backend=self.camera_backend,
+            backend=self.camera_backend, compositor=self.camera_compositor,
         )
         alpha = out.alpha[0]
         background = torch.sigmoid(self.background)

@@ -319,11 +319,17 @@ class InstanceTrajectories(nn.Module):
         dt = torch.where(single, torch.ones_like(t0), t1 - t0)
         w = torch.where(single, torch.zeros_like(t0), (t_tensor - t0) / dt).to(dtype)  # [Z]
 
-        zi = torch.arange(Z, device=device)
-        p0, p1 = self.positions[zi, k0], self.positions[zi, k1]
+        # Rows (z, k) of the [Z, F, ...] tables by index_select of the flattened table: its backward
+        # is an index_add, advanced indexing's a sort (a kernel chain per call on CUDA).
+        steps = self.positions.shape[1]
+        zi = torch.arange(Z, device=device) * steps
+        r0, r1 = zi + k0, zi + k1
+        positions = self.positions.flatten(0, 1)
+        p0, p1 = positions.index_select(0, r0), positions.index_select(0, r1)
         trans = p0 + w[:, None] * (p1 - p0)
-        R0 = self.base_rotations[zi, k0] @ so3_exp(self.rotation_deltas[zi, k0])
-        R1 = self.base_rotations[zi, k1] @ so3_exp(self.rotation_deltas[zi, k1])
+        base, deltas = self.base_rotations.flatten(0, 1), self.rotation_deltas.flatten(0, 1)
+        R0 = base.index_select(0, r0) @ so3_exp(deltas.index_select(0, r0))
+        R1 = base.index_select(0, r1) @ so3_exp(deltas.index_select(0, r1))
         rel = so3_log(R0.transpose(-1, -2) @ R1)  # [Z, 3] geodesic from step k0 to k1
         R = R0 @ so3_exp(w[:, None] * rel)
         if not velocities:

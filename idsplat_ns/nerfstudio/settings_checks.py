@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any, Iterator, Optional
 
 from idsplat_ns.errors import IDSplatError
+from idsplat_ns.render.compositor import triton_installed
 
 
 @dataclasses.dataclass(frozen=True)
@@ -53,6 +54,15 @@ def check_camera_backend(backend: str, device_type: str) -> None:
     if device_type != "cuda" or not _gsplat_available():
         raise IDSplatError(f"--pipeline.model.camera-backend gsplat needs a CUDA device and the gsplat package "
                            f"(training on {device_type}); use auto or torch")  # fmt: skip
+
+
+def check_lidar_compositor(compositor: str, device_type: str) -> None:
+    """Refuse a lidar compositor the training device cannot run (``--machine.device-type``)."""
+    option = "--pipeline.model.lidar.compositor"
+    if compositor == "triton" and (device_type != "cuda" or not triton_installed()):
+        raise IDSplatError(f"{option} triton needs a CUDA device and Triton (training on {device_type}); use auto or torch")
+    if compositor == "compiled" and device_type != "cpu":
+        raise IDSplatError(f"{option} compiled runs on the CPU (training on {device_type}); use auto or torch")
 
 
 POSITIVE = Range(0, low_open=True)

@@ -18,7 +18,7 @@ from nerfstudio.engine.trainer import TrainerConfig
 
 from idsplat_ns.errors import register_run_dir
 from idsplat_ns.nerfstudio.config_defaults import FillsMissingFieldsOnLoad
-from idsplat_ns.nerfstudio.settings_checks import check_camera_backend, validate_settings
+from idsplat_ns.nerfstudio.settings_checks import check_camera_backend, check_lidar_compositor, validate_settings
 
 
 @dataclass
@@ -31,6 +31,7 @@ class IDSplatTrainerConfig(FillsMissingFieldsOnLoad, TrainerConfig):
     def save_config(self) -> None:
         validate_settings(self)
         check_camera_backend(self.pipeline.model.camera_backend, self.machine.device_type)
+        check_lidar_compositor(self.pipeline.model.lidar.compositor, self.machine.device_type)
         base_dir = self.get_base_dir()
         created = not base_dir.exists()  # an existing folder (a fixed --timestamp) is not ours to remove
         super().save_config()

@@ -10,7 +10,7 @@ import torch
 from torch import Tensor
 
 from ..errors import IDSplatError
-from .compositor import use_compiled_compositor
+from .compositor import choose_compositor
 from .projection import Projection, project_gaussians
 from .rolling_shutter import CameraMotion
 from .tile_composite import CompositePlan, TileCoefficients, TileComposite, pixel_basis
@@ -103,8 +103,9 @@ def rasterize_camera(
     features and viewmats. ``backend``: ``"torch"`` (tile rasterizer, any device), ``"gsplat"``
     (CUDA kernels) or ``"auto"`` (gsplat when the inputs are on CUDA and gsplat is installed).
     ``tile_size``, ``chunk_elems`` (the torch compositor's block size; None: the device's
-    default) and ``compositor`` (``"compiled"``: numba loops on CPU tensors, ``"torch"``: tensor
-    ops on any device, ``"auto"``: compiled on the CPU) only trade speed against memory in the
+    default) and ``compositor`` (``"compiled"``: numba loops on CPU tensors, ``"triton"``: Triton
+    kernels on float32 CUDA tensors, ``"torch"``: tensor ops on any device, ``"auto"``: compiled
+    on the CPU, Triton on CUDA) only trade speed against memory in the
     torch backend; they never change the image beyond float rounding. ``return_instance_alpha``
     adds the per-instance alpha maps (one channel per distinct ID in ``instance_ids``). ``motion``: rolling shutter, each Gaussian drawn where it is when its
     line is exposed (:mod:`idsplat_ns.render.rolling_shutter`); None or a global timing renders
@@ -181,7 +182,8 @@ def rasterize_projected(
         tile_offsets=isects.tile_offsets, gaussian_ids=gid,
         basis=pixel_basis(b, device, torch.float64), block_elems=chunk_elems,
     )  # fmt: skip
-    if use_compiled_compositor(compositor, features):
+    kind = choose_compositor(compositor, features)
+    if kind == "compiled":
         from .compiled_composite import CompiledGaussianComposite  # numba only when it runs
 
         # Each row's coefficients are made inside the compiled loop from its Gaussian's
@@ -204,7 +206,12 @@ def rasterize_projected(
             [proj.means2d.reshape(-1, 2), proj.conics.reshape(-1, 3), opacities.repeat(cams)[:, None]], dim=1
         )  # [C*N, 6]
         coeffs = TileCoefficients.apply(per_gaussian.index_select(0, gid), cx, cy)
-        pix, crossing = TileComposite.apply(coeffs, feats, plan)
+        if kind == "triton":
+            from .triton_composite import TritonTileComposite  # Triton only when it runs
+
+            pix, crossing = TritonTileComposite.apply(coeffs, feats, plan)
+        else:
+            pix, crossing = TileComposite.apply(coeffs, feats, plan)
     out = tiles_to_image(pix, isects, width, height)
     feats_img, depth_sum, alpha = out[..., :d], out[..., d : d + 1], out[..., d + 1 : d + 2]
     has = alpha > 0

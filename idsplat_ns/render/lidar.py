@@ -28,7 +28,7 @@ import torch
 from torch import Tensor
 
 from ..errors import IDSplatError
-from .compositor import use_compiled_compositor
+from .compositor import choose_compositor
 from .projection import covariance_3d
 from .reference import ALPHA_MIN
 from .tile_composite import (
@@ -296,7 +296,7 @@ def rasterize_lidar(
     chunk_elems: Optional[int] = None,  # compositor block size (None: the device's default)
     ray_cutoff: Optional[Tensor] = None,  # [R] metres from the sensor origin (line of sight)
     cull: bool = True,
-    compositor: str = "auto",  # "compiled" (numba, CPU), "torch" (tensor ops) or "auto" (compiled on the CPU)
+    compositor: str = "auto",  # "compiled" (numba, CPU), "triton" (CUDA), "torch" (tensor ops) or "auto"
 ) -> LidarRender:
     """Render lidar rays: expected/median range, features and alpha per ray (differentiable).
 
@@ -312,8 +312,9 @@ def rasterize_lidar(
     those its own rays may reach (same output, less work). Gaussians with an opacity at or below
     1/255 are dropped either way: they can never reach the compositor's alpha threshold.
 
-    ``compositor``: ``"compiled"`` (numba loops, CPU tensors), ``"torch"`` (tensor ops, any
-    device) or ``"auto"`` (compiled on the CPU); the same result to float rounding.
+    ``compositor``: ``"compiled"`` (numba loops, CPU tensors), ``"triton"`` (Triton kernels, float32
+    CUDA tensors), ``"torch"`` (tensor ops, any device) or ``"auto"`` (compiled on the CPU, Triton
+    on CUDA where it is installed); the same result to float rounding.
 
     Scales, opacities and features are shared by the bins ([N, ...]) or given per bin ([K, N, ...]):
     per bin, each bin is its own set of Gaussians (padding with opacity 0 is dropped), so bins whose
@@ -358,8 +359,8 @@ def rasterize_lidar(
     if k == 1 and not per_bin:  # one bin: a plain selection, no padding
         index = torch.nonzero(keep[0]).squeeze(1)
         if index.numel() < n:
-            means, quats, scales = means[:, index], quats[:, index], scales[index]
-            opacities, features, n = opacities[index], features[index], index.numel()
+            means, quats, scales = means.index_select(1, index), quats.index_select(1, index), scales.index_select(0, index)
+            opacities, features, n = opacities.index_select(0, index), features.index_select(0, index), index.numel()
         scales, opacities, features = scales[None], opacities[None], features[None]
     else:
         index, valid = kept_per_bin(keep)
@@ -429,11 +430,14 @@ def rasterize_lidar(
         [features.reshape(k * n, -1), flat_range[:, None], torch.ones_like(flat_range[:, None])], dim=1
     )
     gid = isects.gaussian_ids
-    m = proj.means2d.reshape(-1, 2)[gid]
+    # index_select, not x[gid]: its backward is one index_add; advanced indexing's backward is an
+    # accumulating index_put, which CUDA runs as a sort of the millions of intersection rows.
+    m = proj.means2d.reshape(-1, 2).index_select(0, gid)
     dxc = m[:, 0].to(f64) - tile_cx[isects.tile_ids]
     dxc = dxc - width * torch.round(dxc.detach() / width)  # azimuth wraps: nearest copy of the mean
     coeffs = quadratic_coefficients(
-        dxc, m[:, 1].to(f64) - tile_cy[isects.tile_ids], proj.conics.reshape(-1, 3)[gid], opacities.reshape(-1)[gid]
+        dxc, m[:, 1].to(f64) - tile_cy[isects.tile_ids], proj.conics.reshape(-1, 3).index_select(0, gid),
+        opacities.reshape(-1).index_select(0, gid),
     )  # fmt: skip
     gid, coeffs = gid.index_select(0, src), coeffs.index_select(0, src)  # each sub-tile's copy of its list
     cutoff = None
@@ -446,16 +450,21 @@ def rasterize_lidar(
         slot_valid=slot_valid, block_elems=chunk_elems,
         cutoff_depths=cutoff, gaussian_depths=None if cutoff is None else flat_range.detach(),
     )  # fmt: skip
-    if use_compiled_compositor(compositor, feats):
+    kind = choose_compositor(compositor, feats)
+    if kind == "compiled":
         from .compiled_composite import CompiledTileComposite  # numba only when it runs
 
         composited = CompiledTileComposite.apply(coeffs, feats, plan)
+    elif kind == "triton":
+        from .triton_composite import TritonTileComposite  # Triton only when it runs
+
+        composited = TritonTileComposite.apply(coeffs, feats, plan)
     else:
         composited = TileComposite.apply(coeffs, feats, plan)
     pix, crossing = composited[0], composited[1]
     flat_slot = ray_sub * slots + slot
-    before_cutoff = composited[2].reshape(-1)[flat_slot][:, None] if cutoff is not None else None
-    out = pix[flat_slot]  # [R, D + 2]
+    before_cutoff = composited[2].reshape(-1).index_select(0, flat_slot)[:, None] if cutoff is not None else None
+    out = pix.index_select(0, flat_slot)  # [R, D + 2]
     d = features.shape[-1]
     alpha = out[:, d + 1 : d + 2]
     has = alpha > 0
