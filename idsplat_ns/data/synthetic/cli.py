@@ -7,7 +7,9 @@ import dataclasses
 import time
 from pathlib import Path
 
-from idsplat_ns.data.synthetic.config import PRESETS, ROLLING_SHUTTER_DIRECTIONS, SyntheticConfig, get_preset
+from idsplat_ns.data.synthetic.config import (
+    PRESETS, ROLLING_SHUTTER_DIRECTIONS, TRAFFIC_KINDS, SyntheticConfig, get_preset,
+)  # fmt: skip
 from idsplat_ns.data.synthetic.generate import generate_sequence
 from idsplat_ns.errors import run_cli
 
@@ -40,6 +42,12 @@ def _parser() -> argparse.ArgumentParser:
         "--rolling-shutter-direction", choices=ROLLING_SHUTTER_DIRECTIONS, default="top_to_bottom",
         help="readout direction of the rolling shutter (default: top_to_bottom)",
     )
+    p.add_argument(
+        "--traffic", choices=TRAFFIC_KINDS, default=None,
+        help="moving vehicles: fixed (the same five manoeuvres on every seed), varied (0-15 drawn per seed) or "
+             "hard (close passes, long vehicles, completed turns, cut-in, stop-and-go, U-turn); default: the "
+             "preset's (varied and hard presets; fixed otherwise)",
+    )  # fmt: skip
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
 
@@ -48,11 +56,13 @@ _DIRECTION_CODES = {"top_to_bottom": "", "bottom_to_top": "bt", "left_to_right":
 
 
 def config_from_args(preset: str, pedestrians: int | None, cyclists: int | None, rolling_shutter_ms: float = 0.0,
-                     rolling_shutter_direction: str = "top_to_bottom") -> SyntheticConfig:
-    """The preset, with the counts of people and the rolling shutter replaced where given; a changed
-    preset gets its own name (`small_p5c0`, `small_rs40`, `small_rs40lr`), so that its folder does
-    not collide with the preset's."""
+                     rolling_shutter_direction: str = "top_to_bottom", traffic: str | None = None) -> SyntheticConfig:
+    """The preset, with the counts of people, the rolling shutter and the traffic replaced where given;
+    a changed preset gets its own name (`small_p5c0`, `small_rs40`, `small_rs40lr`, `bench_hard`), so
+    that its folder does not collide with the preset's."""
     config = get_preset(preset)
+    if traffic is not None and traffic != config.traffic:
+        config = dataclasses.replace(config, name=f"{config.name}_{traffic}", traffic=traffic)
     counts = {
         "num_pedestrians": config.num_pedestrians if pedestrians is None else pedestrians,
         "num_cyclists": config.num_cyclists if cyclists is None else cyclists,
@@ -66,7 +76,7 @@ def config_from_args(preset: str, pedestrians: int | None, cyclists: int | None,
                                       rolling_shutter_direction=rolling_shutter_direction)
         name = f"{name}_rs{rolling_shutter_ms:g}{_DIRECTION_CODES.get(rolling_shutter_direction, '')}"
     if name == config.name:
-        return config
+        return get_preset(config)
     return get_preset(dataclasses.replace(config, name=name, cameras=cameras, **counts))
 
 
@@ -74,7 +84,7 @@ def _main() -> None:
     args = _parser().parse_args()
     start = time.perf_counter()
     config = config_from_args(args.preset, args.pedestrians, args.cyclists, args.rolling_shutter_ms,
-                              args.rolling_shutter_direction)
+                              args.rolling_shutter_direction, args.traffic)
     path = generate_sequence(
         args.out, config, args.seed, overwrite=args.overwrite, workers=args.workers, progress=not args.quiet
     )

@@ -1,7 +1,7 @@
 """Configuration of the built-in synthetic street: sensor rig, sequence length and the presets.
 
-Every field has a default; the presets (`tiny`, `small`, `bench`) change only sizes, so the three
-show the same kind of street. All lengths are metres, angles degrees, times seconds.
+Every field has a default; the presets `tiny`, `small` and `bench` change only sizes, so the three
+show the same kind of street; `varied` and `hard` are `small`'s sensors with traffic drawn per seed. All lengths are metres, angles degrees, times seconds.
 """
 
 from __future__ import annotations
@@ -10,6 +10,9 @@ import dataclasses
 from dataclasses import dataclass, field
 
 from idsplat_ns.errors import IDSplatError
+
+TRAFFIC_KINDS = ("fixed", "varied", "hard")
+"""Values of ``SyntheticConfig.traffic``."""
 
 CAMERA_NAMES: tuple[str, ...] = ("front_camera", "front_left_camera", "front_right_camera")
 """PandaSet names of the three simulated cameras, in the order they are rendered."""
@@ -102,6 +105,11 @@ class SyntheticConfig:
     num_cyclists: int = 1
     """Cyclists riding in the traffic lanes (label "Bicycle", one cuboid for rider and bicycle). Legs,
     cranks and wheels turn with the pedalling (non-rigid in their cuboid)."""
+    traffic: str = "fixed"
+    """Vehicles and the ego's lane (:mod:`idsplat_ns.data.synthetic.traffic`): ``fixed`` (the same
+    five manoeuvres on every seed), ``varied`` (0-15 movers drawn per seed from a catalogue of
+    manoeuvres and classes, parked rows that vary) or ``hard`` (the close passes, long vehicles,
+    completed turns, cut-in, stop-and-go and U-turn of that catalogue in one street)."""
 
     @property
     def duration(self) -> float:
@@ -121,6 +129,9 @@ PRESETS: dict[str, SyntheticConfig] = {
     ),
     # The demo: trains on 2 CPU cores.
     "small": SyntheticConfig(name="small"),
+    # Development and reports on traffic that changes with the seed (the `small` street's sensors).
+    "varied": SyntheticConfig(name="varied", traffic="varied"),
+    "hard": SyntheticConfig(name="hard", traffic="hard", num_cyclists=2),
     # Benchmarks: closer to real sensor sizes.
     "bench": SyntheticConfig(
         name="bench",
@@ -170,6 +181,8 @@ def check_config(config: SyntheticConfig) -> None:
         raise IDSplatError(f"num_pedestrians={config.num_pedestrians}: choose 0 to {MAX_PEDESTRIANS} (--pedestrians)")
     if not 0 <= config.num_cyclists <= MAX_CYCLISTS:
         raise IDSplatError(f"num_cyclists={config.num_cyclists}: choose 0 to {MAX_CYCLISTS} (--cyclists)")
+    if config.traffic not in TRAFFIC_KINDS:
+        raise IDSplatError(f"traffic={config.traffic!r}: choose one of {', '.join(TRAFFIC_KINDS)} (--traffic)")
 
 
 def config_to_dict(config: SyntheticConfig) -> dict:
@@ -177,6 +190,8 @@ def config_to_dict(config: SyntheticConfig) -> dict:
     fields are left out while the shutter is global, so streets made before the option existed
     keep their `generator.json` byte for byte (and stay cache hits)."""
     out = dataclasses.asdict(config)
+    if config.traffic == "fixed":  # as before the option existed
+        out.pop("traffic")
     if config.cameras.rolling_shutter_seconds == 0:
         for key in _ROLLING_SHUTTER_FIELDS:
             out["cameras"].pop(key)

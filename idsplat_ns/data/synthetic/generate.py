@@ -29,9 +29,10 @@ from idsplat_ns.data.images import write_instance_map
 from idsplat_ns.errors import IDSplatError
 
 GENERATOR_NAME = "idsplat_ns.data.synthetic"
-GENERATOR_VERSION = 2
+GENERATOR_VERSION = 3
 """Bump when the output for a given (config, seed) changes, so that caches are remade.
-2: pedestrians and cyclists (`num_pedestrians`, `num_cyclists`)."""
+2: pedestrians and cyclists (`num_pedestrians`, `num_cyclists`).
+3: each road user's `name` in `instances.json` (its manoeuvre); traffic drawn per seed (`traffic`)."""
 
 
 def sequence_name(config: SyntheticConfig, seed: int) -> str:
@@ -287,7 +288,8 @@ def _write_sequence_files(config: SyntheticConfig, seed: int, tmp: Path, frames:
     writer.write_json(tmp / "meta" / "timestamps.json", [f["time"] for f in frames])
     writer.write_json(tmp / "meta" / "gps.json", [f["gps"] for f in frames])
     instances = {
-        str(v.instance_id): {"uuid": v.uuid, "label": v.label, "moving": v.moving} for v in world.road_users
+        str(v.instance_id): {"uuid": v.uuid, "label": v.label, "moving": v.moving, "name": v.name}
+        for v in world.road_users
     }
     writer.write_json(tmp / "idsplat_extras" / "instances.json", instances)
     shutter = rolling_shutter_of(config)

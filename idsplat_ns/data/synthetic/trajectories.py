@@ -125,4 +125,52 @@ class StraightArcStraight:
         return np.zeros(np.shape(t))
 
 
-Trajectory = Stationary | Straight | StraightArcStraight
+@dataclass(frozen=True, eq=False)
+class PathMotion:
+    """Motion along any planar path with a speed profile: lane changes, U-turns, turns, stop-and-go.
+
+    The path is a polyline sampled densely (a few decimetres: headings change by well under a
+    degree between samples); the distance travelled is tabulated over time. Before the first and
+    after the last knot the object goes on at the end speeds, along the path's end directions, so
+    every time has a pose. The heading is the path's direction, interpolated between segment
+    midpoints (continuous, also while the object stands still).
+    """
+
+    path: np.ndarray  # [P, 2]
+    """Local points along the path, in driving order."""
+    times: np.ndarray  # [Q]
+    """Increasing times (seconds) at which the distance travelled is known."""
+    distance: np.ndarray  # [Q]
+    """Distance along the path at `times`, metres (non-decreasing)."""
+
+    def _lengths(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        seg = np.diff(self.path, axis=0)
+        length = np.linalg.norm(seg, axis=1)
+        cum = np.concatenate([[0.0], np.cumsum(length)])
+        heading = np.unwrap(np.arctan2(seg[:, 1], seg[:, 0]))
+        return cum, heading, seg / length[:, None]
+
+    def distance_at(self, t: np.ndarray) -> np.ndarray:
+        """Distance travelled along the path at times `t` [N] (extrapolated at the end speeds)."""
+        t = np.asarray(t, dtype=np.float64)
+        s = np.interp(t, self.times, self.distance)
+        v0 = (self.distance[1] - self.distance[0]) / (self.times[1] - self.times[0])
+        v1 = (self.distance[-1] - self.distance[-2]) / (self.times[-1] - self.times[-2])
+        s = np.where(t < self.times[0], self.distance[0] + v0 * (t - self.times[0]), s)
+        return np.where(t > self.times[-1], self.distance[-1] + v1 * (t - self.times[-1]), s)
+
+    def pose(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Position [N, 2] and heading [N] at times `t` [N]."""
+        cum, heading, unit = self._lengths()
+        s = self.distance_at(t)
+        k = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(unit) - 1)
+        xy = self.path[k] + (s - cum[k])[..., None] * unit[k]  # beyond the ends: along the end segments
+        mids = 0.5 * (cum[:-1] + cum[1:])
+        return xy, np.interp(s, mids, heading)
+
+    def height(self, t: np.ndarray) -> np.ndarray:
+        """Height [N] of the object's footprint above the road at times `t` [N]: on the road."""
+        return np.zeros(np.shape(t))
+
+
+Trajectory = Stationary | Straight | StraightArcStraight | PathMotion

@@ -19,6 +19,8 @@ import numpy as np
 
 from idsplat_ns.data.synthetic import materials as mat
 from idsplat_ns.data.synthetic.config import SyntheticConfig
+from idsplat_ns.data.synthetic import traffic
+from idsplat_ns.data.synthetic.traffic import VEHICLE_DIMENSIONS
 from idsplat_ns.data.synthetic.trajectories import (
     Stationary,
     Straight,
@@ -214,15 +216,38 @@ CAR_COLORS = np.array(
     ]
 )
 
-VEHICLE_SIZES = {  # label: (length, width, height)
-    "Car": (4.5, 1.82, 1.48),
-    "Pickup Truck": (5.4, 1.98, 1.85),
-    "Bus": (11.0, 2.5, 3.1),
-}
+VEHICLE_SIZES = VEHICLE_DIMENSIONS
+"""label: (length, width, height) of every vehicle class the street has."""
+
+
+def _wheel(x: float, y: float, r: float) -> Part:
+    return Part(CYLINDER, mat.WHEEL, np.array([x, y, r]), np.array([r, r, 0.12]), rotation=_WHEEL_ROTATION,
+                color=np.array([0.05, 0.05, 0.05]))
+
+
+def _truck_parts(label: str, color: np.ndarray, style: int) -> list[Part]:
+    """A box truck or a tractor with its trailer (one rigid object): a cab at the front, a cargo box
+    behind it, wheels on their axles."""
+    length, width, height = VEHICLE_SIZES[label]
+    hl, hw = length / 2, width / 2
+    cab = 2.0 if label == "Medium-sized Truck" else 3.0
+    cab_height = 2.6 if label == "Medium-sized Truck" else 3.2
+    parts = [
+        _box(mat.CAR_BODY, (hl - cab, -hw, 0.45), (hl, hw, 1.5), color, style),
+        _box(mat.CAR_CABIN, (hl - cab, -0.95 * hw, 1.5), (hl - 0.1, 0.95 * hw, cab_height), color, style),
+        _box(mat.BUS_BODY, (-hl, -hw, 1.0), (hl - cab - 0.2, hw, height), (0.82, 0.82, 0.8), style),
+    ]
+    axles = [hl - 1.2, -hl + 1.6] if label == "Medium-sized Truck" else [hl - 1.2, hl - 4.2, -hl + 1.4, -hl + 2.7]
+    for x in axles:
+        for sy in (-1, 1):
+            parts.append(_wheel(x, sy * (hw - 0.14), 0.5))
+    return parts
 
 
 def vehicle_parts(label: str, color: np.ndarray, style: int) -> list[Part]:
     """Parts of a vehicle in its frame (x forward, y left, z up, origin = footprint centre)."""
+    if label in ("Medium-sized Truck", "Semi-truck"):
+        return _truck_parts(label, color, style)
     length, width, height = VEHICLE_SIZES[label]
     hl, hw = length / 2, width / 2
     wheel_r = 0.5 if label == "Bus" else 0.34
@@ -453,6 +478,41 @@ def _vehicles(rng: np.random.Generator, layout: StreetLayout, config: SyntheticC
     return out
 
 
+def _vehicle_objects(rng: np.random.Generator, specs: list[tuple[str, str, Trajectory, bool]]) -> list[SceneObject]:
+    """Scene objects of (name, label, trajectory, moving) specs, instance IDs 1, 2, ... in order."""
+    colors = CAR_COLORS[rng.permutation(len(CAR_COLORS))]
+    out = []
+    for k, (name, label, traj, moving) in enumerate(specs):
+        length, width, height = VEHICLE_SIZES[label]
+        color = colors[k % len(colors)] if label != "Bus" else np.array([0.85, 0.55, 0.1])
+        out.append(
+            SceneObject(
+                name=name,
+                parts=vehicle_parts(label, color, int(rng.integers(0, 1 << 20))),
+                trajectory=traj,
+                instance_id=k + 1,
+                label=label,
+                moving=moving,
+                dimensions=(width, length, height),
+                uuid=str(uuid.UUID(bytes=rng.bytes(16), version=4)),
+            )
+        )
+    return out
+
+
+def _drawn_traffic(rng: np.random.Generator, layout: StreetLayout, config: SyntheticConfig, ego: Straight) -> list[SceneObject]:
+    """Parked and moving vehicles of a ``varied`` or ``hard`` street (:mod:`traffic`)."""
+    road = traffic.Road(layout.lane_width, layout.road_half_width - layout.parking_width / 2, layout.side_street_x,
+                        layout.side_street_half_width, config.duration, ego)  # fmt: skip
+    parked = traffic.parked_vehicles(rng, road)
+    movers = traffic.place_movers(rng, road, traffic.draw_manoeuvres(rng, config.traffic),
+                                  [(traj, label) for label, traj in parked], config.num_frames)  # fmt: skip
+    specs = [("parked_truck" if label in traffic.LONG_VEHICLES else "parked_car", label, traj, False)
+             for label, traj in parked]  # fmt: skip
+    specs += [(m.manoeuvre, m.label, m.trajectory, True) for m in movers]
+    return _vehicle_objects(rng, specs)
+
+
 def build_world(config: SyntheticConfig, seed: int) -> World:
     """The street for `config`, varied by `seed` (building sizes and colours, furniture, car colours).
 
@@ -462,14 +522,20 @@ def build_world(config: SyntheticConfig, seed: int) -> World:
     from idsplat_ns.data.synthetic.people_placement import place_people  # builds on this module
 
     rng = np.random.default_rng(np.random.SeedSequence([seed, 0x5717]))
+    # Drawn traffic has a stream of its own: the street around it is the fixed street's.
+    traffic_rng = np.random.default_rng(np.random.SeedSequence([seed, 0x7AFF1C]))
     layout = StreetLayout()
-    ego = Straight(0.0, -1.5 * layout.lane_width, 0.0, config.ego_speed)
+    lane_y = traffic.ego_lane(traffic_rng, config.traffic, -1.5 * layout.lane_width, -0.5 * layout.lane_width)
+    ego = Straight(0.0, lane_y, 0.0, config.ego_speed)
     ground = SceneObject("ground", [Part(PLANE, mat.GROUND, np.zeros(3), np.zeros(3))])
     objects = [ground]
     objects += _sidewalks(layout)
     objects += _buildings(rng, layout)
     objects += _street_furniture(rng, layout)
-    vehicles = _vehicles(rng, layout, config, ego)
+    if config.traffic == "fixed":
+        vehicles = _vehicles(rng, layout, config, ego)
+    else:
+        vehicles = _drawn_traffic(traffic_rng, layout, config, ego)
     objects += vehicles
     people_rng = np.random.default_rng(np.random.SeedSequence([seed, 0x9E0F1E]))
     objects += place_people(people_rng, layout, config, ego, vehicles, first_id=len(vehicles) + 1)
