@@ -1,9 +1,12 @@
 """Tracking quality of the self-supervised instance tracks *before* training (what the model
 starts from), on the synthetic street: CLEAR-MOT against the moving vehicles (the observed
-protocol of ``eval/trajectory_eval.py``, and all annotated ones) and a per-object table (matched
-instance, static/dynamic decision, offset of the canonical origin).
+protocol of ``eval/trajectory_eval.py``, and all annotated ones), a per-object table (matched
+instance, static/dynamic decision, offset of the canonical origin), ns-eval's per-object diagnosis
+(frames lost, lost within 10 m of the ego, longest gap, tracks per object) and, over all seeds,
+the same per manoeuvre, with the preprocessing time per instance.
 
     .venv/bin/python bench/bench_tracking.py --preset small --seeds 0 1 [--masks ground-truth]
+    .venv/bin/python bench/bench_tracking.py --preset hard --seeds 100 101 102 103 --out T.md
 
 Uses the same frames as training (the dataparser's split) and the same preprocessing as
 ``ns-train idsplat`` (masks from lidar motion; ``--masks ground-truth``: the generator's 2D masks).
@@ -12,9 +15,11 @@ Uses the same frames as training (the dataparser's split) and the same preproces
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
 import numpy as np
 
+from idsplat_ns.eval.object_diagnosis import ObjectRecord, diagnose_objects
 from idsplat_ns.eval.tracking import aggregate
 from idsplat_ns.eval.trajectory_eval import flatten_metrics, tracking_summary
 from idsplat_ns.instances.modes import instance_tracks_for_mode
@@ -58,11 +63,13 @@ def main() -> None:
     ap = street_arguments(__doc__.splitlines()[0])
     ap.add_argument("--masks", default="auto", choices=["auto", "lidar-motion", "ground-truth"],
                     help="mask source (auto: lidar-motion on the built-in street; ground-truth: its own 2D masks)")
+    ap.add_argument("--out", type=Path, default=None, help="also write the per-seed and per-manoeuvre tables here (markdown)")
     args = ap.parse_args()
     from idsplat_ns.instances.masks.config import MaskConfig
 
     preprocess = PreprocessConfig(masks=MaskConfig(kind=args.masks))
-    per_seq, per_seq_all = [], []
+    per_seq, per_seq_all, lines = [], [], []
+    records: list[tuple[int, ObjectRecord]] = []
     for seed, scene, train, cache in training_streets(args, "idsplat_track_"):
         t0 = time.perf_counter()
         tracks = instance_tracks_for_mode(scene, "self-supervised", train, preprocess, cache)
@@ -72,15 +79,49 @@ def main() -> None:
         every = tracking_summary(scene, traj.positions_at, observed=None)
         per_seq.append(summary)
         per_seq_all.append(every)
-        print(f"\nseed {seed}: preprocessing {seconds:.1f} s, {len(tracks.instances)} dynamic, "
-              f"{len(tracks.static_instances)} static instances")
+        # Every frame, as ns-eval counts them: held-out frames between training frames are interpolated.
+        objects = diagnose_objects(scene, traj.positions_at)
+        records += [(seed, r) for r in objects]
+        n_inst = len(tracks.instances) + len(tracks.static_instances)
+        print(f"\nseed {seed}: preprocessing {seconds:.1f} s ({seconds / max(n_inst, 1):.1f} s an instance), "
+              f"{len(tracks.instances)} dynamic, {len(tracks.static_instances)} static instances")
         print(f"{'object':>12} {'truth':>7} {'inst':>5} {'decided':>8} {'med.err':>8} {'displ.':>8} {'valid':>6}")
         print("\n".join(_object_rows(scene.subset(train), tracks)))
         _print_metrics(f"seed {seed}", summary)
         _print_metrics(f"seed {seed} (all)", every)
+        flat = flatten_metrics(summary)
+        lines.append(f"| {seed} | {flat.get('mota@2m', float('nan')):.3f} | {flat.get('motp@2m', float('nan')):.2f} | "
+                     f"{sum(r.frames_lost for r in objects if r.group == 'vehicle')} / "
+                     f"{sum(len(r.frames) for r in objects if r.group == 'vehicle')} | "
+                     f"{sum(r.frames_lost_near for r in objects if r.group == 'vehicle')} / "
+                     f"{sum(r.frames_near for r in objects if r.group == 'vehicle')} | "
+                     f"{sum(r.longest_lost > 3 for r in objects if r.group == 'vehicle')} | "
+                     f"{seconds:.1f} | {seconds / max(n_inst, 1):.2f} |")  # fmt: skip
     if len(per_seq) > 1:
         _print_metrics("all seeds", aggregate(per_seq))
         _print_metrics("all seeds (all)", aggregate(per_seq_all))
+    table = "\n".join([
+        f"Self-supervised tracks before training, `{args.preset}` seeds {' '.join(map(str, args.seeds))}, training "
+        "frames' tracks at every frame, 2 m; vehicles only in the counts", "",
+        "| seed | MOTA@2m | MOTP@2m | frames lost | lost within 10 m | gaps > 3 frames | preprocessing s | s an instance |",
+        "|---|---|---|---|---|---|---|---|", *lines, "", manoeuvre_table(records)])  # fmt: skip
+    print("\n" + table)
+    if args.out is not None:
+        args.out.write_text(table + "\n")
+
+
+def manoeuvre_table(records: list[tuple[int, "ObjectRecord"]]) -> str:
+    """Per object name (the built-in street's manoeuvre) over all seeds: objects, frames lost (near the
+    ego), objects with a gap of more than 3 frames, objects split into several tracks."""
+    by_name: dict[str, list] = {}
+    for _, r in records:
+        by_name.setdefault(f"{r.name} ({r.group})", []).append(r)
+    rows = ["| object | count | frames lost | lost within 10 m | gaps > 3 frames | split |", "|---|---|---|---|---|---|"]
+    for name, rs in sorted(by_name.items(), key=lambda kv: -sum(r.frames_lost for r in kv[1])):
+        rows.append(f"| {name} | {len(rs)} | {sum(r.frames_lost for r in rs)} / {sum(len(r.frames) for r in rs)} | "
+                    f"{sum(r.frames_lost_near for r in rs)} / {sum(r.frames_near for r in rs)} | "
+                    f"{sum(r.longest_lost > 3 for r in rs)} | {sum(r.fragments > 1 for r in rs)} |")  # fmt: skip
+    return "\n".join(rows)
 
 
 def _print_metrics(title: str, summary) -> None:

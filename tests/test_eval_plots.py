@@ -38,9 +38,17 @@ def test_eval_writes_the_plot_and_the_report_lists_it(pipeline, tmp_path, monkey
     monkeypatch.setattr(pipeline.model, "lidar", None)  # the held-out lidar metrics are not tested here (slow)
     result = pipeline.get_average_eval_image_metrics(output_path=tmp_path / "renders", get_std=True)
     plots = tmp_path / "renders" / "plots"
-    names = ["trajectories_top.png", "position_errors.png", "per_image_psnr.png"]
+    names = ["trajectories_top.png", "position_errors.png", "per_image_psnr.png", "objects_timeline.png"]
     assert result["plots"] == [str(plots / name) for name in names]
     assert all(Image.open(p).size[0] > 400 for p in result["plots"])
+    # The per-object diagnosis: every annotated moving road user the observed protocol counts, with
+    # its own DPSNR where the held-out images show it.
+    objects = result["objects"]
+    assert objects and {o["name"] for o in objects} <= {"leading_car", "overtaking_car", "oncoming_car", "oncoming_bus",
+                                                      "turning_car"}  # fmt: skip
+    assert sum(o["frames_tracked"] + o["frames_lost"] == o["frames"] for o in objects) == len(objects)
+    assert any(o["dpsnr"] is not None for o in objects)
+    assert result["objects_frames"] == sum(o["frames"] for o in objects if o["class"] == "vehicle")
     (tmp_path / "eval.json").write_text(json.dumps({"experiment_name": "tiny", "results": result}))
     res = subprocess.run([sys.executable, "-m", "idsplat_ns.nerfstudio.report", str(tmp_path / "eval.json")],
                          capture_output=True, text=True, timeout=120)

@@ -64,6 +64,42 @@ def dynamic_mask(
     return mask.astype(bool)
 
 
+def moving_object_map(scene: Scene, image: CameraImage, scale: float = 1.0) -> tuple[np.ndarray, list[str]]:
+    """Which moving road user covers each pixel: ``[H, W]`` int32 (-1 none, else an index into the
+    returned track IDs). From the dataset's instance masks where it has them (with its instance
+    file's uuids), else the boxes' silhouettes, nearer boxes over farther ones."""
+    intr = image.intrinsics.scaled(scale)
+    instance_map = load_instance_mask(image, scale)
+    classes = scene.metadata.get("gt_instances")
+    out = np.full((intr.height, intr.width), -1, np.int32)
+    ids: list[str] = []
+    if instance_map is not None and classes is not None:
+        for k, info in classes.items():
+            if info.get("moving") and info.get("uuid") and label_group(info.get("label", "")) in ROAD_USER_CLASSES:
+                hit = instance_map == int(k)
+                if hit.any():
+                    out[hit] = len(ids)
+                    ids.append(str(info["uuid"]))
+        return out, ids
+    import cv2
+
+    cam = image.camera_to_world[:3, 3]
+    boxes = []
+    for track in scene.tracks:
+        k = track.index_of_frame(image.frame_index) if track.moving and track.group in ROAD_USER_CLASSES else None
+        if k is not None:
+            boxes.append((float(np.linalg.norm(track.poses[k][:3, 3] - cam)), track, k))
+    for _, track, k in sorted(boxes, key=lambda b: -b[0]):  # far to near: the nearer box is drawn last
+        poly = box_silhouette(_at_scale(image, intr), track.poses[k], track.size)
+        if poly is not None and len(poly) >= 3:
+            layer = np.zeros_like(out, np.uint8)
+            cv2.fillConvexPoly(layer, poly, 1)
+            if layer.any():
+                out[layer.astype(bool)] = len(ids)
+                ids.append(track.track_id)
+    return out, ids
+
+
 def moving_classes(scene: Scene) -> list[str]:
     """The road-user classes with moving annotated objects in the scene (tracks, or the classes
     file of the dataset's own instance masks), in :data:`ROAD_USER_CLASSES` order."""

@@ -108,6 +108,41 @@ def _counts(acc: motmetrics.MOTAccumulator, dont_care: list[set[int]]) -> dict[s
             "ignored": ignored, "distance": float(ev["D"].to_numpy()[paired].sum())}
 
 
+def _numbered(gt: Track, pred: Track):
+    """Frames in order and, per frame, (object numbers, prediction numbers, distances [N, M]), with
+    the id -> number maps: motmetrics wants numeric ids and frame numbers (it subtracts them)."""
+    frames = sorted(set(gt.keys()) | set(pred.keys()), key=frame_sort_key)
+    o_num: dict[Hashable, int] = {}
+    h_num: dict[Hashable, int] = {}
+    per_frame = []
+    for frame in frames:
+        oids, o_xyz = _positions(gt.get(frame, {}), f"ground truth of frame {frame!r}")
+        hids, h_xyz = _positions(pred.get(frame, {}), f"predictions of frame {frame!r}")
+        dist = _distances(oids, o_xyz, hids, h_xyz, frame)
+        per_frame.append(([o_num.setdefault(o, len(o_num)) for o in oids],
+                          [h_num.setdefault(h, len(h_num)) for h in hids], dist))
+    return frames, per_frame, o_num, h_num
+
+
+def object_matches(gt: Track, pred: Track, threshold: float) -> dict[tuple[Hashable, Hashable], Optional[tuple[Hashable, float]]]:
+    """Who each ground-truth object was matched to, frame by frame, under :func:`clear_mot`'s rules
+    at one ``threshold``: ``{(frame, object id): (prediction id, distance [m]) or None (a miss)}``."""
+    frames, per_frame, o_num, h_num = _numbered(gt, pred)
+    objects = {v: k for k, v in o_num.items()}
+    predictions = {v: k for k, v in h_num.items()}
+    acc = motmetrics.MOTAccumulator(auto_id=False)
+    for k, (oids, hids, dist) in enumerate(per_frame):
+        acc.update(oids, hids, np.where(dist <= threshold, dist, np.nan), frameid=k)
+    ev = acc.mot_events
+    out: dict = {}
+    for (k, _), kind, oid, hid, d in zip(ev.index, ev["Type"], ev["OId"], ev["HId"], ev["D"]):
+        if kind in ("MATCH", "SWITCH"):
+            out[(frames[int(k)], objects[int(oid)])] = (predictions[int(hid)], float(d))
+        elif kind == "MISS":
+            out[(frames[int(k)], objects[int(oid)])] = None
+    return out
+
+
 def clear_mot(
     gt: Track,
     pred: Track,
@@ -123,18 +158,8 @@ def clear_mot(
     predictions (predictions inside regions that do not count, as KITTI's "don't care" boxes).
     Returns ``{threshold: TrackingMetrics}``.
     """
-    frames = sorted(set(gt.keys()) | set(pred.keys()), key=frame_sort_key)
-    # motmetrics wants numeric ids and frame numbers (it subtracts them): number them in order.
-    o_num: dict[Hashable, int] = {}
-    h_num: dict[Hashable, int] = {}
-    per_frame, ignore = [], []
-    for frame in frames:
-        oids, o_xyz = _positions(gt.get(frame, {}), f"ground truth of frame {frame!r}")
-        hids, h_xyz = _positions(pred.get(frame, {}), f"predictions of frame {frame!r}")
-        dist = _distances(oids, o_xyz, hids, h_xyz, frame)
-        per_frame.append(([o_num.setdefault(o, len(o_num)) for o in oids],
-                          [h_num.setdefault(h, len(h_num)) for h in hids], dist))
-        ignore.append({h_num[h] for h in (dont_care or {}).get(frame, ()) if h in h_num})
+    frames, per_frame, _, h_num = _numbered(gt, pred)
+    ignore = [{h_num[h] for h in (dont_care or {}).get(frame, ()) if h in h_num} for frame in frames]
     n_obj = sum(len(o) for o, _, _ in per_frame)
     n_pred = sum(len(h) for _, h, _ in per_frame)
     out: dict[float, TrackingMetrics] = {}

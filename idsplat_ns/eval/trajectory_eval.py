@@ -106,11 +106,11 @@ def ground_truth_positions(
 ) -> dict:
     """``{frame: {track_id: xyz}}`` of the annotated (moving) objects of the class ``groups``, box
     centres in the world; with ``observed``, only where the filter counts them."""
-    return _ground_truth(scene, _annotations(scene, observed, moving_only), groups, moving_only)[0]
+    return _ground_truth(scene, scene_annotations(scene, observed, moving_only), groups, moving_only)[0]
 
 
 @dataclass(frozen=True)
-class _Annotation:
+class Annotation:
     """One annotated box at one frame, with whether the observed filter counts it."""
 
     frame: int
@@ -119,7 +119,7 @@ class _Annotation:
     observed: bool
 
 
-def _annotations(scene: Scene, observed: Optional[ObservedFilter], moving_only: bool = True) -> list[_Annotation]:
+def scene_annotations(scene: Scene, observed: Optional[ObservedFilter], moving_only: bool = True) -> list[Annotation]:
     """Every road user's box at every scene frame, with the observed filter evaluated once (with
     ``moving_only``, for the moving ones only: only those can count)."""
     frames = {int(f) for f in scene.frame_indices}
@@ -132,11 +132,11 @@ def _annotations(scene: Scene, observed: Optional[ObservedFilter], moving_only: 
             if int(f) not in frames:
                 continue
             seen = observed is None or ((track.moving or not moving_only) and _observed(index, track, k, int(f), observed))
-            out.append(_Annotation(int(f), track, pose, seen))
+            out.append(Annotation(int(f), track, pose, seen))
     return out
 
 
-def _ground_truth(scene: Scene, annotations: list[_Annotation], groups: Sequence[str], moving_only: bool):
+def _ground_truth(scene: Scene, annotations: list[Annotation], groups: Sequence[str], moving_only: bool):
     """Counted positions ``{frame: {id: xyz}}`` (every scene frame) and boxes that do not count
     ``{frame: [(pose, size)]}``: unobserved objects of ``groups`` and every road user of the other
     classes."""
@@ -204,7 +204,7 @@ def class_tracking_summaries(
     """:func:`tracking_summary` for several class sets ``{name: classes}`` at once (the observed
     filter and the predictions are evaluated once). A set without annotated moving objects in the
     scene is left out of the result unless ``keep_absent``."""
-    annotations = _annotations(scene, observed)
+    annotations = scene_annotations(scene, observed)
     margin = (observed or ObservedFilter()).dont_care_margin
     pred = predicted_positions(scene, positions_at)
     out = {}

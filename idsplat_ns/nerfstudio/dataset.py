@@ -1,5 +1,5 @@
 """nerfstudio dataset over a Scene's images: loads pixels through the project's loader and adds
-the ground-truth dynamic mask (evaluation only) to each batch."""
+the ground-truth dynamic masks and the moving objects' pixel map (evaluation only) to each batch."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import numpy as np
 import torch
 from nerfstudio.data.datasets.base_dataset import InputDataset
 
-from idsplat_ns.data.dynamic_masks import dynamic_mask
+from idsplat_ns.data.dynamic_masks import dynamic_mask, moving_object_map
 from idsplat_ns.data.images import load_rgb
 
 
@@ -22,7 +22,7 @@ class IDSplatDataset(InputDataset):
     """Images of one split of a Scene, at the dataparser's scale."""
 
     exclude_batch_keys_from_device = InputDataset.exclude_batch_keys_from_device + [
-        "dynamic_mask", "dynamic_mask_pedestrian", "dynamic_mask_cyclist"
+        "dynamic_mask", "dynamic_mask_pedestrian", "dynamic_mask_cyclist", "object_map", "object_ids"
     ]
 
     def __init__(self, dataparser_outputs, scale_factor: float = 1.0):
@@ -44,4 +44,7 @@ class IDSplatDataset(InputDataset):
         for group in self.extra_groups:
             mask = dynamic_mask(self.scene, image, self.image_scale, groups=(group,))
             out[f"dynamic_mask_{group}"] = torch.from_numpy(mask)[..., None]
+        # Each moving road user's pixels: its own DPSNR in ns-eval's per-object diagnosis.
+        object_map, object_ids = moving_object_map(self.scene, image, self.image_scale)
+        out["object_map"], out["object_ids"] = torch.from_numpy(object_map), object_ids
         return out

@@ -454,6 +454,21 @@ class IDSplatModel(Model):
             images["instances"] = instance_colors(ids)
         return metrics, images
 
+    def object_pixel_errors(self, outputs, batch) -> Dict[str, Tuple[float, int]]:
+        """``{track_id: (squared error summed over its pixels and channels, pixel count)}`` of each
+        annotated moving road user in an evaluation image (``batch["object_map"]``)."""
+        if "object_map" not in batch or not batch["object_ids"]:
+            return {}
+        pred = outputs["rgb"].clamp(0, 1)
+        sq = (pred - self._gt_image(batch, pred)).square().sum(-1)  # [H, W]
+        index = batch["object_map"].to(self.device).long()
+        if index.shape != sq.shape:  # the render's size differs: the map follows it (nearest pixel)
+            index = F.interpolate(index[None, None].float(), size=sq.shape, mode="nearest")[0, 0].long()
+        ids, hit = batch["object_ids"], index >= 0
+        sse = torch.zeros(len(ids), device=self.device).index_add_(0, index[hit], sq[hit])
+        count = torch.bincount(index[hit], minlength=len(ids))
+        return {ids[k]: (float(sse[k]), int(count[k])) for k in range(len(ids)) if int(count[k]) > 0}
+
     def _lpips_metric(self):
         if self.config.lpips_backbone is None:
             return None

@@ -1,6 +1,7 @@
 """IDSplat pipeline: the vanilla pipeline with an evaluation average that tolerates metrics only
 some images have (DPSNR of a class needs moving objects of that class in view), plus the tracking
-metrics per class, the render speed and the lidar metrics of the held-out sweeps. A metric the data
+metrics per class, the per-object diagnosis (frames lost, distance to the ego, DPSNR of each
+annotated moving road user), the render speed and the lidar metrics of the held-out sweeps. A metric the data
 or the given files cannot support (LPIPS without weights, ray drop without drop labels) is absent
 from ns-eval's JSON, and a ``<metric>_note`` line there says why."""
 
@@ -20,6 +21,8 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from idsplat_ns.eval.lpips import LPIPS_NOTE
 from idsplat_ns.eval.metric_average import average_image_metrics
+from idsplat_ns.eval.object_diagnosis import diagnose_objects, diagnosis_summary
+from idsplat_ns.eval.object_plots import plot_object_timeline
 from idsplat_ns.nerfstudio.dataset import frames_of_split
 
 CONSOLE = Console()
@@ -48,6 +51,18 @@ class IDSplatPipeline(VanillaPipeline):
         with torch.no_grad():
             return tracking_metrics(scene, trajectories.positions_at)
 
+    def _object_diagnosis(self, object_errors: dict) -> list:
+        """One record per annotated moving road user: frames tracked and lost by the (optimised)
+        trajectories at 2 m, its distance to the ego, its DPSNR over the held-out images
+        (``object_errors``: ``{track_id: (squared error, pixels)}`` summed over them)."""
+        scene = self.datamanager.scene
+        if not any(t.moving for t in scene.tracks):
+            return []
+        trajectories = self.model.scene_model.trajectories
+        with torch.no_grad():
+            return diagnose_objects(scene, trajectories.positions_at if trajectories is not None else (lambda t: {}),
+                                    object_errors=object_errors)  # fmt: skip
+
     def _held_out_sweeps(self) -> list:
         """Lidar sweeps of the evaluation frames (none for camera-only models or scenes)."""
         if getattr(self.model, "lidar", None) is None:
@@ -72,7 +87,7 @@ class IDSplatPipeline(VanillaPipeline):
                                       lambda: progress.advance(task),
                                       lambda rendered: range_errors.append(sweep_range_errors(rendered, threshold)))
 
-    def _write_plots(self, folder: Path, per_image: list, range_errors: list) -> list[str]:
+    def _write_plots(self, folder: Path, per_image: list, range_errors: list, objects: list) -> list[str]:
         """Plots of the evaluation (ns-eval with --render-output-path only): the top view of the
         learned trajectories with their IDs, the annotated moving road users and the ego path, each
         instance's position error over time, PSNR / DPSNR per held-out image and the held-out lidar
@@ -94,6 +109,9 @@ class IDSplatPipeline(VanillaPipeline):
             plots.append(plot_position_errors(gt, pred, folder / "plots" / "position_errors.png",
                                               f"{scene.name}: instance position error against the nearest annotated track"))
         plots.append(plot_per_image(per_image, folder / "plots" / "per_image_psnr.png", f"{scene.name}: held-out images"))
+        if objects:
+            plots.append(plot_object_timeline(objects, folder / "plots" / "objects_timeline.png",
+                                              f"{scene.name}: annotated moving road users, frame by frame"))
         ranges = np.concatenate([r for r, _ in range_errors]) if range_errors else np.zeros(0)
         if ranges.size:
             errors = np.concatenate([e for _, e in range_errors])
@@ -105,6 +123,7 @@ class IDSplatPipeline(VanillaPipeline):
                                   output_path: Optional[Path] = None, get_std: bool = False):
         self.eval()
         per_image = []
+        object_errors: dict = {}  # track_id -> [squared error, pixels] over the held-out images
         if output_path is not None:
             output_path.mkdir(exist_ok=True, parents=True)
         with Progress(TextColumn("[progress.description]{task.description}"), BarColumn(), TimeElapsedColumn(),
@@ -116,6 +135,9 @@ class IDSplatPipeline(VanillaPipeline):
                 metrics, images = self.model.get_image_metrics_and_images(outputs, batch)
                 metrics["num_rays_per_sec"] = float(camera.height * camera.width) / (time() - start)
                 per_image.append(metrics)
+                for tid, (sse, count) in self.model.object_pixel_errors(outputs, batch).items():
+                    acc = object_errors.setdefault(tid, [0.0, 0])
+                    acc[0], acc[1] = acc[0] + sse, acc[1] + count
                 if output_path is not None:
                     for key, image in images.items():
                         arr = (image.detach().clamp(0, 1).cpu().numpy() * 255).astype(np.uint8)
@@ -126,8 +148,12 @@ class IDSplatPipeline(VanillaPipeline):
         result = average_image_metrics(per_image, get_std)
         result.update(self._tracking_metrics())
         result.update(lidar)
+        objects = self._object_diagnosis({k: tuple(v) for k, v in object_errors.items()}) if step is None else []
+        if objects:  # ns-eval's JSON: which object was lost, when, how close (the trainer logs scalars only)
+            result.update(diagnosis_summary(objects))
+            result["objects"] = [r.as_dict() for r in objects]
         if output_path is not None and step is None:  # ns-eval writing renders: the plots go beside them
-            result["plots"] = self._write_plots(output_path, per_image, range_errors)
+            result["plots"] = self._write_plots(output_path, per_image, range_errors, objects)
             CONSOLE.print(f"plots: {', '.join(result['plots'])}")
         if step is None:  # ns-eval's JSON says which protocol and instance source the result belongs to
             meta = self.datamanager.train_dataparser_outputs.metadata

@@ -1,5 +1,6 @@
 """Print an ``ns-eval`` result as tables (image and lidar metrics; tracking per class with its
-counts), the notes on metrics the data could not support, and where the renders and checkpoint are."""
+counts; the objects lost, frame by frame), the notes on metrics the data could not support, and
+where the renders and checkpoint are."""
 
 from __future__ import annotations
 
@@ -54,6 +55,27 @@ def tracking_table(results: dict, threshold: str = "2m") -> Table | None:
     return table
 
 
+OBJECT_COLUMNS = (("name", "object"), ("label", "class"), ("frames", "frames"), ("frames_lost", "lost"),
+                  ("frames_lost_near", "lost < 10 m"), ("longest_lost", "longest gap"), ("fragments", "tracks"),
+                  ("min_distance_to_ego", "closest (m)"), ("dpsnr", "DPSNR"))  # fmt: skip
+
+
+def objects_table(results: dict, rows: int = 12) -> Table | None:
+    """The annotated moving objects with the most lost frames (ns-eval's ``objects``), worst first;
+    None when every object was tracked in every frame it counts."""
+    objects = [o for o in results.get("objects", []) if o["frames_lost"] or o["fragments"] > 1]
+    if not objects:
+        return None
+    objects = sorted(objects, key=lambda o: (-o["frames_lost"], -o["fragments"]))[:rows]
+    table = Table(title="Objects lost at 2 m (frames the observed protocol counts; the full list is ns-eval's "
+                        "JSON 'objects', the picture plots/objects_timeline.png)")  # fmt: skip
+    for _, name in OBJECT_COLUMNS:
+        table.add_column(name, justify="left" if name in ("object", "class") else "right")
+    for o in objects:
+        table.add_row(*("" if o.get(k) is None else str(o[k]) for k, _ in OBJECT_COLUMNS))
+    return table
+
+
 def notes(results: dict) -> list[str]:
     """The one-line notes of metrics left out (``<metric>_note`` keys), in key order."""
     return [str(results[k]) for k in sorted(results) if k.endswith("_note")]
@@ -86,6 +108,9 @@ def main(argv: list[str] | None = None) -> None:
         tracking = tracking_table(results)
         if tracking is not None:
             console.print(tracking)
+        lost = objects_table(results)
+        if lost is not None:
+            console.print(lost)
         for note in notes(results):
             console.print(f"[yellow]note: {note}")
         if args.renders is not None:
