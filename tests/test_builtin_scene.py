@@ -1,6 +1,6 @@
 """The built-in street is made once, reused, and remade when its generator record changes."""
-
 import json
+
 
 from idsplat_ns.nerfstudio.builtin_scene import builtin_street
 
@@ -19,3 +19,18 @@ def test_builtin_street_is_cached_and_refreshed(tmp_path, monkeypatch):
     assert builtin_street("tiny", seed=3) == first
     assert json.loads(record.read_text())["version"] != "an older generator"  # remade by this generator
     assert not list((tmp_path / "synthetic").glob(".*tmp*"))  # no temporary folder left behind
+
+
+def test_a_builtin_street_run_gives_the_viewer_its_folder(tmp_path, monkeypatch):
+    # ns-viewer opens the datamanager's data path; `make demo`'s run (built-in street, no --data)
+    # has none in its config: the street's cache folder stands in for it.
+    from method_configs.idsplat import make_trainer_config
+
+    monkeypatch.setenv("IDSPLAT_CACHE", str(tmp_path / "cache"))
+    cfg = make_trainer_config("idsplat-fast", 10, (10**6, 10**6), fast=True)
+    cfg.pipeline.datamanager.dataparser.builtin_preset = "tiny"
+    cfg.pipeline.datamanager.instance_mode = "static"
+    assert cfg.pipeline.datamanager.dataparser.data is None
+    manager = cfg.pipeline.datamanager.setup(device="cpu", test_mode="test", world_size=1, local_rank=0)
+    path = manager.get_datapath()
+    assert path.is_dir() and path.parent == tmp_path / "cache" / "synthetic" and (path / "lidar").is_dir()

@@ -73,6 +73,16 @@ class IDSplatDataManager(FullImageDatamanager[IDSplatDataset]):
     def scene(self):
         return self.train_dataparser_outputs.metadata["scene"]
 
+    def get_datapath(self) -> Path:
+        """The sequence's folder: ``--data`` where given, else where the scene was read from (the
+        built-in street's cache folder). nerfstudio's viewer opens it; a built-in-street run's
+        config has no ``data``, and the viewer of ``make demo``'s run failed on ``None``."""
+        data = self.config.dataparser.data
+        if data is not None:
+            return Path(data)
+        root = self.scene.root
+        return Path(root) if root is not None else Path.cwd()
+
     def _load_images(self, split, cache_images_device):
         # nerfstudio pins CPU-cached images, which needs an accelerator; when training on the CPU,
         # its "gpu" mode (cache on the training device, i.e. the CPU here) does the right thing.
