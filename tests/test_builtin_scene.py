@@ -1,6 +1,7 @@
-"""The built-in street is made once, reused, and remade when its generator record changes."""
-import json
+"""The built-in street is made once, reused, and remade when its generator record changes; a run on
+it gives the viewer the street's folder."""
 
+import json
 
 from idsplat_ns.nerfstudio.builtin_scene import builtin_street
 
