@@ -44,7 +44,7 @@ from idsplat_ns.instances.modes import ground_truth_masks
 from idsplat_ns.instances.runner import PreprocessConfig, run_preprocessing
 from idsplat_ns.model.trajectories import InstanceTrajectories
 
-from _streets import street_arguments, training_streets  # bench/ is on the path when run as a script
+from _streets import setting_of, street_arguments, training_streets  # bench/ is on the path when run as a script
 from bench_smoothed_poses import _errors, _matching_box_poses
 
 RESULTS_VERSION = 1  # bumped when what a stored (variant, street) result holds changes
@@ -52,25 +52,6 @@ MOTA_TOL = 0.002  # a street's MOTA@2m counts as worse/better beyond this
 CORNER_TOL = 0.01  # a street's mean corner error counts as worse/better beyond this fraction
 MOTA_EFFECT = 0.01  # verdict margins: mean MOTA@2m change ...
 CORNER_EFFECT = 0.03  # ... or mean relative corner-error change
-
-
-def config_names(path: str) -> list[str]:
-    """The field names of a dotted setting in ``PreprocessConfig`` (``registration.*`` is named as
-    the docs name it; it lives in the trajectory config)."""
-    names = path.split(".")
-    return ["trajectory", *names] if names[0] == "registration" else names
-
-
-def _with(path: str, value) -> Callable[[PreprocessConfig], PreprocessConfig]:
-    """The config with the field at dotted ``path`` set to ``value`` (nested frozen dataclasses)."""
-    names = config_names(path)
-
-    def apply(c, names=tuple(names)):
-        if len(names) == 1:
-            return replace(c, **{names[0]: value})
-        return replace(c, **{names[0]: apply(getattr(c, names[0]), names[1:])})
-
-    return apply
 
 
 @dataclass(frozen=True)
@@ -90,7 +71,7 @@ class Rule:
         return f"{self.path}={value}"
 
     def off(self, c: PreprocessConfig) -> PreprocessConfig:
-        return _with(self.path, self.value)(c)
+        return setting_of(self.path, self.value)(c)
 
 
 RULES = [
@@ -143,8 +124,12 @@ RULES = [
          "point-to-plane ICP refinement of the RANSAC winner"),
     Rule("no-chain", "registration", "trajectory.chain_neighbours", 0,
          "failed frames registered again against their nearest registered frames (with motion-outliers and coast)"),
+    Rule("no-chain-centroid-velocity", "registration", "trajectory.chain_centroid_velocity", False,
+         "beside the only registered frame, the chain predicts with the observations' centroid velocity"),
+    Rule("no-chain-gate-growth", "registration", "trajectory.chain_gate_grows", False,
+         "while the motion rests on two registered frames, the chain's 1 m gate grows with the extrapolation"),
     Rule("no-motion-outliers", "registration", "trajectory.motion_outliers", False,
-         "first-pass registrations > 1 m off the constant-velocity prediction left to the chain"),
+         "registrations > 1 m off the constant-velocity prediction (the reference too) left to the chain, before and after it"),
     Rule("no-coast", "registration", "trajectory.coast_frames", 0,
          "one unregistered frame past either end takes the constant-velocity prediction when its points fit"),
     Rule("no-heading-flips", "registration", "trajectory.heading_flips.enabled", False,

@@ -26,7 +26,7 @@ from idsplat_ns.instances.modes import instance_tracks_for_mode
 from idsplat_ns.instances.runner import PreprocessConfig
 from idsplat_ns.model.trajectories import InstanceTrajectories
 
-from _streets import street_arguments, training_streets  # bench/ is on the path when run as a script
+from _streets import parse_settings, street_arguments, training_streets  # bench/ is on the path when run as a script
 
 
 def _object_rows(scene, tracks) -> list[str]:
@@ -64,10 +64,14 @@ def main() -> None:
     ap.add_argument("--masks", default="auto", choices=["auto", "lidar-motion", "ground-truth"],
                     help="mask source (auto: lidar-motion on the built-in street; ground-truth: its own 2D masks)")
     ap.add_argument("--out", type=Path, default=None, help="also write the per-seed and per-manoeuvre tables here (markdown)")
+    ap.add_argument("--set", nargs="*", default=[], metavar="PATH=VALUE",
+                    help="preprocessing settings changed, by their dotted names (masks.lidar_motion.max_extent=14)")
     args = ap.parse_args()
     from idsplat_ns.instances.masks.config import MaskConfig
 
     preprocess = PreprocessConfig(masks=MaskConfig(kind=args.masks))
+    for change in parse_settings(args.set):
+        preprocess = change(preprocess)
     per_seq, per_seq_all, lines = [], [], []
     records: list[tuple[int, ObjectRecord]] = []
     for seed, scene, train, cache in training_streets(args, "idsplat_track_"):

@@ -13,9 +13,9 @@ import pytest
 
 from idsplat_ns.data.lidar import LidarSweep
 from idsplat_ns.data.tracks import class_from_size_speed
+from idsplat_ns.instances.free_space import _SweepRays
 from idsplat_ns.instances.lidar_motion import (
     LidarMotionConfig,
-    _SweepRays,
     fits_footprint,
     ground_heights,
     merge_parts,

@@ -4,11 +4,13 @@ users with no Grounded-SAM-2 files or no GPU).
 1. **Ground**: each 0.5 m cell's height is a low rank of the points of all sweeps falling in it (the
    road is seen wherever a car has moved away); points more than ``min_height`` above it are kept.
 2. **Clusters**: DBSCAN (scikit-learn) of each sweep's kept points; clusters of object size survive.
-3. **Free space**: a cluster point seen at time t is tested against sweeps ``evidence_offsets_s``
-   before and after: the ray of that sweep nearest in direction to the point either ends near it
-   (occupied then: static evidence), passes beyond it or returns nothing (free then: the object
-   has moved), or ends before it (occluded: no evidence). The cluster's motion score is the share
-   of free among free + occupied.
+3. **Free space** (free_space.py): a cluster point seen at time t is tested against sweeps
+   ``evidence_offsets_s`` before and after: the ray of that sweep nearest in direction to the point
+   either ends near it (occupied then: static evidence), passes beyond it or returns nothing (free
+   then: the object has moved), or ends before it (occluded: no evidence). The cluster's motion
+   score is the share of free among free + occupied; once clusters are tracks, only the points
+   the object's own moved footprint leaves free count (a long vehicle covers most of its old
+   points half a second later).
 4. **Tracks**: clusters are associated over sweeps by their centroids (constant-velocity
    prediction, Hungarian assignment within a gate); a track is moving when its median motion score
    exceeds ``moving_score``. Parked cars, poles and walls fail the test. Moving tracks at similar
@@ -37,6 +39,7 @@ from idsplat_ns.data.lidar import LidarSweep
 from idsplat_ns.data.scene import Scene
 from idsplat_ns.data.tracks import class_from_size_speed
 from idsplat_ns.errors import IDSplatError
+from idsplat_ns.instances.free_space import motion_compensated_scores, score_clusters
 from idsplat_ns.instances.lidar_motion_lifting import save_track_points
 from idsplat_ns.instances.masks.base import InstanceMaskSet, MaskSource, mask_filename, write_instance_map, write_labels
 
@@ -62,8 +65,10 @@ class LidarMotionConfig:
     """DBSCAN core-point neighbour count."""
     min_points: int = 15
     """Clusters with fewer points are dropped."""
-    max_extent: float = 14.0
-    """Metres: clusters longer than this on the ground are structure, not a road user."""
+    max_extent: float = 22.0
+    """Metres: clusters longer than this on the ground are structure, not a road user (a
+    semi-truck is 16.5-20 m long; the built-in street's, 16.5 m, seen whole beside the ego, was
+    dropped at 14 m)."""
     min_footprint: float = 0.4
     """Metres: clusters narrower than this on the ground in every direction are poles and posts
     (too thin for the free-space test: rays of other sweeps pass beside them)."""
@@ -75,6 +80,19 @@ class LidarMotionConfig:
     """Seconds: sweeps at these offsets (the nearest to each) give free-space evidence."""
     min_evidence: int = 8
     """Points with evidence needed for a cluster's motion score to count."""
+    compensate_own_motion: bool = True
+    """Ours: decide motion by the free-space evidence of only the points that the object's own
+    footprint, moved by its track's velocity, leaves at the evidence sweeps' times. A bus moving
+    along its length still covers most of its old points half a second later (occupied evidence
+    of a moving object): its plain score was 0.55, below ``moving_score``, and it was never an
+    instance."""
+    compensate_min_seconds: float = 1.0
+    """Seconds a track must span for its velocity, and so its compensated score, to be trusted:
+    static structure passed by the ego drifts in centroid (other faces come into view) for a few
+    sweeps; compensated by that drift, its edge points read free."""
+    self_cover_radius: float = 0.5
+    """Metres: a point lies in the object's moved footprint when one of its own points, moved,
+    is this close on the ground."""
     moving_score: float = 0.6
     """A track whose median motion score exceeds this is moving."""
     min_displacement: float = 1.5
@@ -119,6 +137,9 @@ class MotionCluster:
     """[N] seconds, when each point's ray was fired."""
     score: float = float("nan")
     """Share of free-space evidence (NaN: too little evidence)."""
+    moved_score: float = float("nan")
+    """The same over only the points that the object itself does not cover at the evidence sweeps'
+    times, moved by its track's velocity (free_space.motion_compensated_scores; NaN: too little)."""
 
     @property
     def centroid(self) -> np.ndarray:  # -> [3]
@@ -137,6 +158,15 @@ class MotionTrack:
     def median_score(self) -> float:
         scores = [c.score for c in self.clusters if np.isfinite(c.score)]
         return float(np.median(scores)) if scores else float("nan")
+
+    def motion_score(self) -> float:
+        """The median motion-compensated score where clusters have one, else :meth:`median_score`."""
+        scores = [c.moved_score for c in self.clusters if np.isfinite(c.moved_score)]
+        return float(np.median(scores)) if scores else self.median_score()
+
+    def duration(self) -> float:
+        """Seconds from the first cluster's mean ray time to the last's."""
+        return float(np.mean(self.clusters[-1].times) - np.mean(self.clusters[0].times)) if self.clusters else 0.0
 
     def displacement(self) -> float:
         """Metres between the first and the last centroid on the ground."""
@@ -238,49 +268,6 @@ def cluster_sweep(points: np.ndarray, times: np.ndarray, frame: int, config: Lid
     return out
 
 
-class _SweepRays:
-    """Direction lookup of one sweep's rays (a KD-tree on unit directions)."""
-
-    def __init__(self, sweep: LidarSweep):
-        self.origin = sweep.sensor_to_world[:3, 3]
-        self.tree = cKDTree(sweep.directions)
-        self.ranges = np.where(sweep.returned, sweep.ranges, np.inf)  # no return: free to the end
-
-    def evidence(self, points: np.ndarray, config: LidarMotionConfig) -> tuple[int, int]:
-        """(free, occupied) counts of ``points`` [N, 3] as seen by this sweep.
-
-        The few rays nearest in direction decide together: free only when every one passes beyond
-        the point (a single grazing ray beside a thin pole must not call it free), occupied when
-        any ends near it."""
-        offset = points - self.origin
-        dist = np.linalg.norm(offset, axis=1)
-        gap, idx = self.tree.query(offset / dist[:, None], k=4, distance_upper_bound=config.max_direction_error)
-        found = np.isfinite(gap)  # [N, 4]
-        r = np.where(found, self.ranges[np.minimum(idx, len(self.ranges) - 1)], np.nan)
-        d = dist[:, None]
-        seen = found.any(1)
-        beyond = np.where(found, r > d + config.free_margin, True).all(1) & seen
-        near = (found & (np.abs(r - d) <= config.free_margin)).any(1)
-        return int(beyond.sum()), int(near.sum())
-
-
-def score_clusters(clusters_per_sweep: list[list[MotionCluster]], sweeps: list[LidarSweep], config: LidarMotionConfig) -> None:
-    """Set each cluster's free-space motion score from the sweeps at the evidence offsets."""
-    times = np.array([s.time for s in sweeps])
-    rays: dict[int, _SweepRays] = {}
-    for k, clusters in enumerate(clusters_per_sweep):
-        others = {int(np.argmin(np.abs(times - (times[k] + dt)))) for dt in config.evidence_offsets_s} - {k}
-        for cluster in clusters:
-            free = occupied = 0
-            for j in others:
-                if j not in rays:
-                    rays[j] = _SweepRays(sweeps[j])
-                f, o = rays[j].evidence(cluster.points, config)
-                free, occupied = free + f, occupied + o
-            if free + occupied >= config.min_evidence:
-                cluster.score = free / (free + occupied)
-
-
 def associate(clusters_per_sweep: list[list[MotionCluster]], sweep_times: np.ndarray, config: LidarMotionConfig) -> list[MotionTrack]:
     """Tracks of clusters over sweeps: constant-velocity prediction and Hungarian assignment."""
     tracks: list[MotionTrack] = []
@@ -328,8 +315,11 @@ def moving_tracks(scene: Scene, config: LidarMotionConfig, progress: bool = Fals
         clusters.append(cluster_sweep(pts, times, k, config))
     score_clusters(clusters, sweeps, config)
     tracks = associate(clusters, np.array([s.time for s in sweeps]), config)
-    moving = [tr for tr in tracks if len(tr.clusters) >= config.min_track_frames and tr.median_score() > config.moving_score
-              and tr.displacement() >= config.min_displacement]
+    long_enough = [tr for tr in tracks if len(tr.clusters) >= config.min_track_frames]
+    if config.compensate_own_motion:
+        motion_compensated_scores([tr for tr in long_enough if tr.duration() >= config.compensate_min_seconds], sweeps, config)
+    score = (lambda tr: tr.motion_score()) if config.compensate_own_motion else (lambda tr: tr.median_score())
+    moving = [tr for tr in long_enough if score(tr) > config.moving_score and tr.displacement() >= config.min_displacement]
     moving = merge_parts(moving, config)
     for n, tr in enumerate(moving, start=1):
         tr.track_id = n
@@ -394,11 +384,16 @@ def merge_parts(tracks: list[MotionTrack], config: LidarMotionConfig) -> list[Mo
             for c in tr.clusters:
                 by_frame.setdefault(c.frame, []).append(c)
         clusters = [MotionCluster(f, np.concatenate([c.points for c in cs]), np.concatenate([c.times for c in cs]),
-                                  float(np.nanmax([c.score for c in cs] + [np.nan])) if any(np.isfinite(c.score) for c in cs) else float("nan"))
+                                  _max_finite([c.score for c in cs]), _max_finite([c.moved_score for c in cs]))
                     for f, cs in sorted(by_frame.items())]
         longest = max(members, key=lambda t: len(t.clusters))
         merged.append(MotionTrack(longest.track_id, clusters, longest.velocity))
     return sorted(merged, key=lambda t: t.clusters[0].frame)
+
+
+def _max_finite(values: list[float]) -> float:
+    finite = [v for v in values if np.isfinite(v)]
+    return max(finite) if finite else float("nan")
 
 
 def render_track_masks(scene: Scene, tracks: list[MotionTrack], config: LidarMotionConfig, out_dir: Path,

@@ -45,8 +45,10 @@ LIFTING_FORMAT = 2
 # amodal centre, parked instances not turned; 5: segments linked along the box's axis, not the
 # origin's mean travel direction; 6: hypotheses that tilt the vehicle are not considered; 7: the
 # fewest frames of either part dropped to link a segment; 8: normals from open3d, equal to rounding,
-# which moves some borderline fitness decisions).
-REGISTRATION_VERSION = 8
+# which moves some borderline fitness decisions; 9: beside a single registered frame the chain
+# predicts with the observations' centroid velocity, its gate grows with the extrapolation, and
+# the reference frame may be a motion outlier too).
+REGISTRATION_VERSION = 9
 # The same for the smoothing stage (2: translations not measured by a frame's surfaces; 3: tilt and
 # vertical motion sigmas; 4: one-sided faces left to the motion; 5: heading prior and vertical cap;
 # 6: turning curvature; 7: lidar ground under the vehicles, sparse views left to the motion).

@@ -29,6 +29,9 @@ from idsplat_ns.instances.amodal_centre import amodal_centre, sensors_in_canonic
 from idsplat_ns.instances.features.base import PointFeatures
 from idsplat_ns.instances.heading_flips import HeadingFlipConfig, canonical_box_centre, heading_errors, turn_about
 from idsplat_ns.instances.lifting import InstanceObservation, LiftedInstances
+from idsplat_ns.instances.motion_prior import (
+    centroid_velocity, motion_outliers, motion_prior_pose, predicted_pose, prediction_gate,
+)  # fmt: skip
 from idsplat_ns.instances.registration import (
     RegistrationConfig,
     Visibility,
@@ -68,6 +71,17 @@ class TrajectoryConfig:
     chain_max_deviation: float = 1.0
     """Metres: a chained registration is accepted only this close to the constant-velocity
     prediction from the two nearest registered frames."""
+    chain_centroid_velocity: bool = True
+    """Ours, with the chain only: beside the only registered frame, predict with the velocity of
+    the observations' centroids (least squares over a second either side) instead of none. The
+    densest view of a car passing the ego is its nearest; its neighbours, 2 m away at 10 m/s and
+    0.2 s, never fell within ``chain_max_deviation`` of a zero-velocity prediction."""
+    chain_gate_grows: bool = True
+    """Ours, with the chain only: a prediction extrapolated from two registered frames close in
+    time may be off by more than ``chain_max_deviation``: the gate grows by the velocity error
+    that that deviation in either frame makes over their baseline, times the time extrapolated
+    (motion_prior.prediction_gate). Two frames 0.2 s apart, one slid 1.1 m along a car's flat
+    side, put the frame before them 1.7 m from the prediction."""
     motion_outliers: bool = True
     """Ours, with the chain only: before chaining, first-pass registrations further than
     ``chain_max_deviation`` from the constant-velocity prediction of their two nearest registered
@@ -160,13 +174,16 @@ def estimate_instance_track(
             if result.success:
                 accept(o, result.transform)
         if config.chain_neighbours > 0 and times is not None:
-            if config.motion_outliers:
-                for f in motion_outliers(poses, canon_frames, times, config.chain_max_deviation):
-                    k = canon_frames.index(f)
-                    del canon_pts[k], canon_feat[k], canon_cols[k], canon_frames[k]
-                    valid[f] = False
-            _register_chain(observations, poses, valid, fitness, canon_pts, canon_feat, canon_frames, times, config,
-                            lambda o: _obs_features(features, fid, o), accept, sensor_positions)
+            # Twice: the first pass's slides, then the chain's own (its first frames lean on the
+            # densest view, which may itself be the slid one).
+            for _ in range(2 if config.motion_outliers else 1):
+                if config.motion_outliers:
+                    for f in motion_outliers(poses, canon_frames, times, config.chain_max_deviation):
+                        k = canon_frames.index(f)
+                        del canon_pts[k], canon_feat[k], canon_cols[k], canon_frames[k]
+                        valid[f] = False
+                _register_chain(observations, poses, valid, fitness, canon_pts, canon_feat, canon_frames, times, config,
+                                lambda o: _obs_features(features, fid, o), accept, sensor_positions)
         if config.heading_flips.enabled and times is not None:
             by_frame = {o.frame: o for o in observations}
             _correct_headings(poses, valid, fitness, counts, canon_pts, canon_cols, canon_frames, by_frame, times, config,
@@ -208,61 +225,6 @@ def _chunk_sensors(
 
 def _sensor_at(sensor_positions: Optional[np.ndarray], frame: int) -> Optional[np.ndarray]:  # -> [3] world
     return None if sensor_positions is None else sensor_positions[frame]
-
-
-def predicted_pose(
-    poses: np.ndarray,  # [F, 4, 4] canonical -> world
-    registered: list[int],  # frames with a pose
-    times: np.ndarray,  # [F] seconds
-    frame: int,
-) -> np.ndarray:
-    """Constant-velocity prediction of the pose at ``frame`` from the two registered frames
-    nearest to it in time (the nearest one's rotation; zero velocity with a single frame)."""
-    order = sorted(registered, key=lambda f: (abs(times[f] - times[frame]), f))
-    out = poses[order[0]].copy()
-    if len(order) >= 2 and times[order[1]] != times[order[0]]:
-        a, b = order[0], order[1]
-        velocity = (poses[a, :3, 3] - poses[b, :3, 3]) / (times[a] - times[b])
-        out[:3, 3] += velocity * (times[frame] - times[a])
-    return out
-
-
-def motion_outliers(
-    poses: np.ndarray,  # [F, 4, 4] canonical -> world
-    registered: list[int],  # frames with a pose; the first is the reference and always kept
-    times: np.ndarray,  # [F] seconds
-    max_deviation: float,
-) -> list[int]:
-    """Frames whose position is further than ``max_deviation`` (metres) from the constant-velocity
-    prediction of their two nearest other registered frames, found worst first and one at a time
-    (a misplaced frame also spoils the prediction of its neighbours). Needs 4 registered frames:
-    with 3, each prediction leans on the misplaced one and any of them could be it."""
-    kept = list(registered)
-    out = []
-    while len(kept) >= 4:
-        deviation = {f: float(np.linalg.norm(poses[f, :3, 3] - predicted_pose(poses, [g for g in kept if g != f], times, f)[:3, 3]))
-                     for f in kept[1:]}
-        worst = max(deviation, key=lambda f: (deviation[f], -f))
-        if deviation[worst] <= max_deviation:
-            break
-        out.append(worst)
-        kept.remove(worst)
-    return out
-
-
-def motion_prior_pose(
-    prediction: np.ndarray,  # [4, 4] canonical -> world predicted for the frame
-    source: np.ndarray,  # [N, 3] canonical points
-    target: np.ndarray,  # [M, 3] world points at the frame to register
-    config: RegistrationConfig,
-    radii: tuple[float, ...] = (0.5,),
-) -> np.ndarray:
-    """The prediction refined by point-to-plane ICP with shrinking pair distances (small ones:
-    a wide radius lets a box slide along its own flat faces)."""
-    T = prediction.copy()
-    for radius in radii + (config.icp_distance,):
-        T = icp_point_to_plane(T, source, target, max(config.icp_iterations, 10), radius)
-    return T
 
 
 def _nearest_chunks(
@@ -315,14 +277,17 @@ def _register_chain(
                               config.registration, source_sensors, sensor)
             # Feature matches of a far car are weak: also start from the motion's prediction, and
             # accept only poses near it (a box registered to part of itself can slide metres).
-            prediction = predicted_pose(poses, canon_frames, times, o.frame)
+            velocity, span = centroid_velocity(observations, times, o.frame) if config.chain_centroid_velocity else (None, 0.0)
+            prediction = predicted_pose(poses, canon_frames, times, o.frame, velocity)
+            gate = (prediction_gate(canon_frames, times, o.frame, config.chain_max_deviation, span)
+                    if config.chain_gate_grows else config.chain_max_deviation)
             prior = motion_prior_pose(prediction, source, o.points, config.registration)
             visibility = Visibility.of(source, source_sensors, sensor, config.registration.back_face_tolerance)
             prior_fit = registration_fitness(prior, source, o.points, config.registration.inlier_distance, visibility)
             fitness[o.frame] = max(fitness[o.frame], result.fitness, prior_fit)
             transform, fit = None, 0.0
             for candidate, score in ((result.transform, result.fitness if result.success else 0.0), (prior, prior_fit)):
-                if (score > fit and np.linalg.norm(candidate[:3, 3] - prediction[:3, 3]) <= config.chain_max_deviation
+                if (score > fit and np.linalg.norm(candidate[:3, 3] - prediction[:3, 3]) <= gate
                         and upright(candidate[:3, :3], config.registration.max_tilt)):
                     transform, fit = candidate, score
             if transform is not None and fit >= config.registration.fitness_threshold:

@@ -87,7 +87,7 @@ class BuiltinDataParserConfig(IDSplatDataParserConfig):
 
     _target: Type = field(default_factory=lambda: IDSplatDataParser)
     preset: str = "small"
-    """Street preset: tiny, small or bench."""
+    """Street preset: tiny, small, bench, varied or hard (docs/synthetic.md)."""
     seed: int = 0
     """Street seed (0-19 are the project's development streets)."""
 

@@ -1,0 +1,103 @@
+"""Free-space evidence of lidar clusters: did the object leave where it was?
+
+A cluster point seen at time t is tested against other sweeps: the rays of that sweep nearest in
+direction to the point either end near it (occupied then: static evidence), pass beyond it or
+return nothing (free then: the object moved away), or end before it (occluded: no evidence).
+A cluster's score is the share of free among free + occupied (:func:`score_clusters`).
+
+A moving object covers part of its own old place at the other sweep's time: a bus driving along
+its length half a second later still covers most of the points seen now, which then read as
+occupied. :func:`motion_compensated_scores` counts only the points its moved footprint leaves,
+with each cluster's velocity from its track.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from idsplat_ns.data.lidar import LidarSweep
+
+if TYPE_CHECKING:  # the clusters and tracks of lidar_motion.py, which imports this module
+    from idsplat_ns.instances.lidar_motion import LidarMotionConfig, MotionCluster, MotionTrack
+
+
+class _SweepRays:
+    """Direction lookup of one sweep's rays (a KD-tree on unit directions)."""
+
+    def __init__(self, sweep: LidarSweep):
+        self.origin = sweep.sensor_to_world[:3, 3]
+        self.tree = cKDTree(sweep.directions)
+        self.ranges = np.where(sweep.returned, sweep.ranges, np.inf)  # no return: free to the end
+
+    def evidence(self, points: np.ndarray, config: LidarMotionConfig) -> tuple[int, int]:
+        """(free, occupied) counts of ``points`` [N, 3] as seen by this sweep.
+
+        The few rays nearest in direction decide together: free only when every one passes beyond
+        the point (a single grazing ray beside a thin pole must not call it free), occupied when
+        any ends near it."""
+        offset = points - self.origin
+        dist = np.linalg.norm(offset, axis=1)
+        gap, idx = self.tree.query(offset / dist[:, None], k=4, distance_upper_bound=config.max_direction_error)
+        found = np.isfinite(gap)  # [N, 4]
+        r = np.where(found, self.ranges[np.minimum(idx, len(self.ranges) - 1)], np.nan)
+        d = dist[:, None]
+        seen = found.any(1)
+        beyond = np.where(found, r > d + config.free_margin, True).all(1) & seen
+        near = (found & (np.abs(r - d) <= config.free_margin)).any(1)
+        return int(beyond.sum()), int(near.sum())
+
+
+def score_clusters(clusters_per_sweep: list[list[MotionCluster]], sweeps: list[LidarSweep], config: LidarMotionConfig) -> None:
+    """Set each cluster's free-space motion score from the sweeps at the evidence offsets."""
+    times = np.array([s.time for s in sweeps])
+    rays: dict[int, _SweepRays] = {}
+    for k, clusters in enumerate(clusters_per_sweep):
+        others = _evidence_sweeps(times, k, config.evidence_offsets_s)
+        for cluster in clusters:
+            free = occupied = 0
+            for j in others:
+                if j not in rays:
+                    rays[j] = _SweepRays(sweeps[j])
+                f, o = rays[j].evidence(cluster.points, config)
+                free, occupied = free + f, occupied + o
+            if free + occupied >= config.min_evidence:
+                cluster.score = free / (free + occupied)
+
+
+def _evidence_sweeps(times: np.ndarray, k: int, offsets: tuple[float, ...]) -> set[int]:
+    """The sweeps nearest to ``times[k] + offset`` for each offset, without ``k`` itself."""
+    return {int(np.argmin(np.abs(times - (times[k] + dt)))) for dt in offsets} - {k}
+
+
+def motion_compensated_scores(tracks: list[MotionTrack], sweeps: list[LidarSweep], config: LidarMotionConfig) -> None:
+    """Set each tracked cluster's ``moved_score``: the free-space evidence of the points that the
+    object does not cover itself at the evidence sweep's time, its points moved by the velocity of
+    its track there (central differences of the clusters' centroids). A static object, velocity
+    near 0, covers all its points: no evidence (NaN); one whose centroid drifts as the ego passes
+    it leaves a strip that reads occupied."""
+    times = np.array([s.time for s in sweeps])
+    rays: dict[int, _SweepRays] = {}
+    for track in tracks:
+        if len(track.clusters) < 2:
+            continue
+        t = np.array([float(np.mean(c.times)) for c in track.clusters])
+        if np.any(np.diff(t) <= 0):
+            continue
+        velocity = np.gradient(np.stack([c.centroid[:2] for c in track.clusters]), t, axis=0)  # [C, 2]
+        for cluster, v in zip(track.clusters, velocity):
+            tree = cKDTree(cluster.points[:, :2])
+            free = occupied = 0
+            for j in _evidence_sweeps(times, cluster.frame, config.evidence_offsets_s):
+                shift = v * (times[j] - times[cluster.frame])
+                gap, _ = tree.query(cluster.points[:, :2] - shift, distance_upper_bound=config.self_cover_radius)
+                left = cluster.points[~np.isfinite(gap)]
+                if len(left) == 0:
+                    continue
+                if j not in rays:
+                    rays[j] = _SweepRays(sweeps[j])
+                f, o = rays[j].evidence(left, config)
+                free, occupied = free + f, occupied + o
+            cluster.moved_score = free / (free + occupied) if free + occupied >= config.min_evidence else float("nan")
