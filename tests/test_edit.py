@@ -252,3 +252,16 @@ def test_removing_every_instance_leaves_the_static_scene(pipeline):
         assert pipeline.model.scene_model.trajectories.num_instances == 0
         ids = ids_of(pipeline, i)
     assert not bool((ids > 0).any()) and bool((ids == 0).any())
+
+
+@pytest.mark.parametrize("edit", [["--move", "1", "nan", "0", "0", "0"], ["--duplicate", "1", "0", "inf", "0"],
+                                  ["--retime", "1", "0.5", "0"], ["--retime", "1", "nan"]])
+def test_non_finite_edits_are_refused_before_anything_is_read_or_written(tmp_path, edit):
+    from idsplat_ns.errors import IDSplatError
+    from idsplat_ns.nerfstudio.edit_cli import parse_args, run
+
+    args = parse_args(["--load-config", str(tmp_path / "no-such-run" / "config.yml"), "--output-dir",
+                       str(tmp_path / "edited"), *edit])  # fmt: skip
+    with pytest.raises(IDSplatError, match="finite number|SPEED must be positive"):
+        run(args)
+    assert not (tmp_path / "edited").exists()

@@ -57,6 +57,19 @@ def _instance_id(value: float, option: str) -> int:
     return int(value)
 
 
+def check_edit_values(args: argparse.Namespace) -> None:
+    """Every number of ``--move``, ``--duplicate`` and ``--retime`` finite (and a re-timing's speed
+    positive), checked before the run is read or anything written: a NaN offset would be written
+    into the trajectories."""
+    for option, specs in (("--move", args.move), ("--duplicate", args.duplicate), ("--retime", args.retime)):
+        for spec in specs:
+            if not all(math.isfinite(v) for v in spec):
+                raise IDSplatError(f"{option} {' '.join(f'{v:g}' for v in spec)}: every value must be a finite number")
+    for spec in args.retime:
+        if len(spec) == 3 and spec[2] <= 0:
+            raise IDSplatError(f"--retime {' '.join(f'{v:g}' for v in spec)}: SPEED must be positive")
+
+
 def apply_edits(scene, args: argparse.Namespace) -> list[str]:
     """Apply the command line's edits to ``scene`` (a SceneTensors); returns one line per edit."""
     from idsplat_ns.model.editing import EditError
@@ -127,6 +140,7 @@ def run(args: argparse.Namespace) -> Path | None:
         raise IDSplatError("nothing to do: give --list or an edit (--remove, --move, --retime, --duplicate)")
     if edits_given and args.output_dir is None:
         raise IDSplatError("--output-dir is needed to write the edited run; give a new folder")
+    check_edit_values(args)
     trained = load_run(args.load_config)
     try:
         scene = SceneTensors.from_state_dict(trained.pipeline_state, SCENE_PREFIX)
