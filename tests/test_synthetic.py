@@ -14,7 +14,8 @@ from scipy.spatial.transform import Rotation
 
 from idsplat_ns.data.synthetic import CAMERA_NAMES, PRESETS, generate_sequence, get_preset
 from idsplat_ns.data.synthetic.raycast import RayCaster, intersect_box, intersect_cylinder, intersect_ellipsoid
-from idsplat_ns.data.synthetic.world import BOX, CYLINDER, PLANE, build_world
+from idsplat_ns.data.synthetic.shapes import BOX, CYLINDER, PLANE
+from idsplat_ns.data.synthetic.world import build_world
 from idsplat_ns.errors import IDSplatError
 
 TINY = get_preset("tiny")

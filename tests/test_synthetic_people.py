@@ -23,7 +23,8 @@ from idsplat_ns.data.synthetic.lidar_sim import simulate_sweep, sweep_rays
 from idsplat_ns.data.synthetic.people_placement import WALK_SPEED, CYCLE_SPEED, ground_height
 from idsplat_ns.data.synthetic.raycast import RayCaster
 from idsplat_ns.data.synthetic.rig import cameras
-from idsplat_ns.data.synthetic.world import World, build_world, yaw_matrix
+from idsplat_ns.data.synthetic.shapes import yaw_matrix
+from idsplat_ns.data.synthetic.world import World, build_world
 from idsplat_ns.errors import IDSplatError
 
 TINY = get_preset("tiny")

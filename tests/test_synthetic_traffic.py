@@ -10,8 +10,9 @@ import pytest
 from idsplat_ns.data.synthetic import traffic
 from idsplat_ns.data.synthetic.cli import config_from_args
 from idsplat_ns.data.synthetic.config import config_to_dict, get_preset
-from idsplat_ns.data.synthetic.trajectories import PathMotion, Straight
-from idsplat_ns.data.synthetic.world import StreetLayout, build_world
+from idsplat_ns.data.synthetic.trajectories import Straight
+from idsplat_ns.data.synthetic.shapes import StreetLayout
+from idsplat_ns.data.synthetic.world import build_world
 from idsplat_ns.errors import IDSplatError
 
 

@@ -30,7 +30,6 @@ import os
 import torch
 import triton
 import triton.language as tl
-from torch import Tensor
 
 from .reference import ALPHA_MAX, ALPHA_MIN, TRANSMITTANCE_MIN
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from idsplat_ns.data.synthetic import materials as mat
-from idsplat_ns.data.synthetic.world import BOX, CYLINDER, ELLIPSOID, Part
+from idsplat_ns.data.synthetic.shapes import BOX, CYLINDER, ELLIPSOID, Part
 
 SKIN_TONES = np.array([[0.93, 0.76, 0.64], [0.84, 0.64, 0.50], [0.69, 0.49, 0.35], [0.50, 0.34, 0.23], [0.33, 0.22, 0.15]])
 HAIR_COLORS = np.array([[0.08, 0.06, 0.05], [0.25, 0.16, 0.09], [0.55, 0.40, 0.22], [0.70, 0.62, 0.45], [0.55, 0.55, 0.55]])

@@ -22,7 +22,8 @@ import numpy as np
 from idsplat_ns.data.synthetic.config import SyntheticConfig
 from idsplat_ns.data.synthetic.people import CLEARANCE, EGO_HALF_SIZE, cyclist_parts, walker_parts
 from idsplat_ns.data.synthetic.trajectories import Straight, Trajectory
-from idsplat_ns.data.synthetic.world import BOX, CYLINDER, ELLIPSOID, VEHICLE_SIZES, Part, SceneObject, StreetLayout
+from idsplat_ns.data.synthetic.shapes import BOX, CYLINDER, ELLIPSOID, Part, SceneObject, StreetLayout
+from idsplat_ns.data.synthetic.vehicles import VEHICLE_SIZES
 
 WALK_SPEED = (1.2, 1.6)
 """Range of walking speeds, m/s."""

@@ -13,7 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from idsplat_ns.data.synthetic.trajectories import Stationary
-from idsplat_ns.data.synthetic.world import BOX, CYLINDER, ELLIPSOID, World, yaw_matrix
+from idsplat_ns.data.synthetic.shapes import BOX, CYLINDER, ELLIPSOID, yaw_matrix
+from idsplat_ns.data.synthetic.world import World
 
 EPS = 1e-6
 """Smallest accepted hit distance (rays start on the sensor, never on a surface)."""

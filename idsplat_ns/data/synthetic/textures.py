@@ -12,7 +12,7 @@ import numpy as np
 
 from idsplat_ns.data.synthetic import materials as mat
 from idsplat_ns.data.synthetic.people import HAIR_COLORS, ROLE_HAND, ROLE_SHOE, SKIN_TONES
-from idsplat_ns.data.synthetic.world import StreetLayout
+from idsplat_ns.data.synthetic.shapes import StreetLayout
 
 _M1, _M2 = np.uint64(0xFF51AFD7ED558CCD), np.uint64(0xC4CEB9FE1A85EC53)
 _PRIMES = (np.uint64(0x9E3779B97F4A7C15), np.uint64(0xBF58476D1CE4E5B9), np.uint64(0x94D049BB133111EB))

@@ -25,7 +25,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from idsplat_ns.data.synthetic.config import TRAFFIC_KINDS  # noqa: F401  (re-exported: the kinds this module draws)
 from idsplat_ns.data.synthetic.trajectories import PathMotion, Stationary, Straight, Trajectory
 
 VEHICLE_DIMENSIONS = {  # label: (length, width, height), metres
