@@ -204,3 +204,15 @@ def test_triton_is_not_loaded_by_cpu_rendering():
             "torch.tensor([[[10.0, 0, 4], [0, 10, 4], [0, 0, 1]]]), 8, 8, backend='torch'); print('triton' in sys.modules)")  # fmt: skip
     env = {k: v for k, v in os.environ.items() if k != "TRITON_INTERPRET"}
     assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env).stdout.strip() == "False"
+
+
+def test_lidar_compositor_option_is_checked_against_the_training_device():
+    from idsplat_ns.nerfstudio.settings_checks import check_lidar_compositor
+
+    with pytest.raises(IDSplatError, match="--pipeline.model.lidar.compositor triton needs a CUDA device"):
+        check_lidar_compositor("triton", "cpu")
+    with pytest.raises(IDSplatError, match="--pipeline.model.lidar.compositor compiled runs on the CPU"):
+        check_lidar_compositor("compiled", "cuda")
+    for ok in ("auto", "torch"):
+        check_lidar_compositor(ok, "cpu")
+        check_lidar_compositor(ok, "cuda")
