@@ -136,29 +136,13 @@ def fixed_vehicles(rng: np.random.Generator, layout: StreetLayout, config: Synth
         speed=v_turn,
     )
     specs.append(("turning_car", "Pickup Truck" if rng.random() < 0.3 else "Car", turn, True))
-
-    out = []
-    for k, (name, label, traj, moving) in enumerate(specs):
-        length, width, height = VEHICLE_SIZES[label]
-        color = colors[k % len(colors)] if label != "Bus" else np.array([0.85, 0.55, 0.1])
-        out.append(
-            SceneObject(
-                name=name,
-                parts=vehicle_parts(label, color, int(rng.integers(0, 1 << 20))),
-                trajectory=traj,
-                instance_id=k + 1,
-                label=label,
-                moving=moving,
-                dimensions=(width, length, height),
-                uuid=str(uuid.UUID(bytes=rng.bytes(16), version=4)),
-            )
-        )
-    return out
+    return _vehicle_objects(rng, specs, colors)
 
 
-def _vehicle_objects(rng: np.random.Generator, specs: list[tuple[str, str, Trajectory, bool]]) -> list[SceneObject]:
-    """Scene objects of (name, label, trajectory, moving) specs, instance IDs 1, 2, ... in order."""
-    colors = CAR_COLORS[rng.permutation(len(CAR_COLORS))]
+def _vehicle_objects(rng: np.random.Generator, specs: list[tuple[str, str, Trajectory, bool]],
+                     colors: np.ndarray) -> list[SceneObject]:  # fmt: skip
+    """Scene objects of (name, label, trajectory, moving) specs, instance IDs 1, 2, ... in order,
+    painted in ``colors`` in turn (buses orange)."""
     out = []
     for k, (name, label, traj, moving) in enumerate(specs):
         length, width, height = VEHICLE_SIZES[label]
@@ -188,4 +172,4 @@ def drawn_vehicles(rng: np.random.Generator, layout: StreetLayout, config: Synth
     specs = [("parked_truck" if label in traffic.LONG_VEHICLES else "parked_car", label, traj, False)
              for label, traj in parked]  # fmt: skip
     specs += [(m.manoeuvre, m.label, m.trajectory, True) for m in movers]
-    return _vehicle_objects(rng, specs)
+    return _vehicle_objects(rng, specs, CAR_COLORS[rng.permutation(len(CAR_COLORS))])
