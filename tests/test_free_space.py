@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from idsplat_ns.data.lidar import LidarSweep
-from idsplat_ns.instances.free_space import motion_compensated_scores, score_clusters
+from idsplat_ns.instances.free_space import EvidenceSweeps, motion_compensated_scores, score_clusters
 from idsplat_ns.instances.lidar_motion import LidarMotionConfig, MotionCluster, MotionTrack
 
 TIMES = np.arange(0.0, 3.01, 0.25)
@@ -47,8 +47,9 @@ def _track(faces: list[tuple[float, float]], seen: list[tuple[float, float]] | N
 def test_a_bus_driving_along_its_length_is_moving_once_its_own_footprint_is_left_out():
     config = LidarMotionConfig()
     sweeps, bus = _track([(-20.0 + 7.0 * t, -9.0 + 7.0 * t) for t in TIMES])  # 11 m long at 7 m/s
-    score_clusters([[c] for c in bus.clusters], sweeps, config)
-    motion_compensated_scores([bus], sweeps, config)
+    evidence = EvidenceSweeps(sweeps)
+    score_clusters([[c] for c in bus.clusters], evidence, config)
+    motion_compensated_scores([bus], evidence, config)
     middle = bus.clusters[4:-4]  # evidence on both sides in time
     plain = np.median([c.score for c in middle])
     moved = np.median([c.moved_score for c in middle])
@@ -60,8 +61,9 @@ def test_a_static_face_whose_seen_part_drifts_stays_static():
     config = LidarMotionConfig()
     # A parked truck's side at x 8-16; the detector keeps a 4 m window that slides 1 m a second.
     sweeps, face = _track([(8.0, 16.0)] * len(TIMES), seen=[(9.0 + t, 13.0 + t) for t in TIMES])
-    score_clusters([[c] for c in face.clusters], sweeps, config)
-    motion_compensated_scores([face], sweeps, config)
+    evidence = EvidenceSweeps(sweeps)
+    score_clusters([[c] for c in face.clusters], evidence, config)
+    motion_compensated_scores([face], evidence, config)
     assert np.nanmedian([c.score for c in face.clusters]) < 0.1
     assert face.motion_score() < 0.1  # the strip its drift leaves reads occupied
 
@@ -70,7 +72,7 @@ def test_no_velocity_no_compensated_score():
     config = LidarMotionConfig()
     sweeps, one = _track([(0.0, 4.0)])
     single = MotionTrack(1, one.clusters[:1])
-    motion_compensated_scores([single], sweeps, config)
+    motion_compensated_scores([single], EvidenceSweeps(sweeps), config)
     assert np.isnan(single.clusters[0].moved_score)
     single.clusters[0].score = 0.3
     assert single.motion_score() == pytest.approx(0.3)  # falls back on the plain score

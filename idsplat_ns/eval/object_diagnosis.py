@@ -117,7 +117,9 @@ def diagnose_objects(
         gt[a.frame][a.track.track_id] = a.pose[:3, 3].copy()
     pred = predicted_positions(scene, positions_at)
     matches = object_matches(gt, pred, threshold)
-    ego = {int(s.frame_index): s.sensor_to_world[:3, 3] for s in scene.lidar}
+    # The frame's lidar where it has one, else its ego pose.
+    ego = {int(f): scene.ego_poses[i, :3, 3] for i, f in enumerate(scene.frame_indices)}
+    ego.update({int(s.frame_index): s.sensor_to_world[:3, 3] for s in scene.lidar})
     names = object_names(scene)
     records: dict[str, ObjectRecord] = {}
     for a in sorted(annotations, key=lambda a: a.frame):
@@ -128,8 +130,7 @@ def diagnose_objects(
         rec.tracked.append(hit is not None)
         rec.predictions.append(None if hit is None else hit[0])
         rec.error.append(float("nan") if hit is None else hit[1])
-        origin = ego.get(a.frame, scene.ego_poses[list(scene.frame_indices).index(a.frame), :3, 3])
-        rec.distance_to_ego.append(float(np.linalg.norm(a.pose[:3, 3] - origin)))
+        rec.distance_to_ego.append(float(np.linalg.norm(a.pose[:3, 3] - ego[a.frame])))
     for tid, (sse, count) in (object_errors or {}).items():
         if tid in records and count > 0:
             mse = sse / (3 * count)

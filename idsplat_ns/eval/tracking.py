@@ -124,16 +124,22 @@ def _numbered(gt: Track, pred: Track):
     return frames, per_frame, o_num, h_num
 
 
+def _accumulate(per_frame: list, threshold: float) -> motmetrics.MOTAccumulator:
+    """motmetrics' accumulator over the numbered frames (:func:`_numbered`), pairs beyond
+    ``threshold`` metres not allowed."""
+    acc = motmetrics.MOTAccumulator(auto_id=False)
+    for k, (oids, hids, dist) in enumerate(per_frame):
+        acc.update(oids, hids, np.where(dist <= threshold, dist, np.nan), frameid=k)
+    return acc
+
+
 def object_matches(gt: Track, pred: Track, threshold: float) -> dict[tuple[Hashable, Hashable], Optional[tuple[Hashable, float]]]:
     """Who each ground-truth object was matched to, frame by frame, under :func:`clear_mot`'s rules
     at one ``threshold``: ``{(frame, object id): (prediction id, distance [m]) or None (a miss)}``."""
     frames, per_frame, o_num, h_num = _numbered(gt, pred)
     objects = {v: k for k, v in o_num.items()}
     predictions = {v: k for k, v in h_num.items()}
-    acc = motmetrics.MOTAccumulator(auto_id=False)
-    for k, (oids, hids, dist) in enumerate(per_frame):
-        acc.update(oids, hids, np.where(dist <= threshold, dist, np.nan), frameid=k)
-    ev = acc.mot_events
+    ev = _accumulate(per_frame, threshold).mot_events
     out: dict = {}
     for (k, _), kind, oid, hid, d in zip(ev.index, ev["Type"], ev["OId"], ev["HId"], ev["D"]):
         if kind in ("MATCH", "SWITCH"):
@@ -164,10 +170,7 @@ def clear_mot(
     n_pred = sum(len(h) for _, h, _ in per_frame)
     out: dict[float, TrackingMetrics] = {}
     for t in thresholds:
-        acc = motmetrics.MOTAccumulator(auto_id=False)
-        for k, (oids, hids, dist) in enumerate(per_frame):
-            acc.update(oids, hids, np.where(dist <= t, dist, np.nan), frameid=k)
-        c = _counts(acc, ignore)
+        c = _counts(_accumulate(per_frame, t), ignore)
         out[float(t)] = TrackingMetrics(
             threshold=float(t), num_frames=len(frames), num_objects=n_obj, num_predictions=n_pred - c["ignored"],
             num_matches=c["matches"], num_switches=c["switches"], num_false_positives=c["fp"],

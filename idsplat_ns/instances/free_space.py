@@ -50,36 +50,49 @@ class _SweepRays:
         return int(beyond.sum()), int(near.sum())
 
 
-def score_clusters(clusters_per_sweep: list[list[MotionCluster]], sweeps: list[LidarSweep], config: LidarMotionConfig) -> None:
+class EvidenceSweeps:
+    """Each sweep's ray lookup, made when first asked for and kept: the plain and the
+    motion-compensated scores test against the same sweeps."""
+
+    def __init__(self, sweeps: list[LidarSweep]):
+        self.sweeps = sweeps
+        self.times = np.array([s.time for s in sweeps])
+        self._rays: dict[int, _SweepRays] = {}
+
+    def rays(self, j: int) -> _SweepRays:
+        if j not in self._rays:
+            self._rays[j] = _SweepRays(self.sweeps[j])
+        return self._rays[j]
+
+    def around(self, k: int, offsets: tuple[float, ...]) -> set[int]:
+        """The sweeps nearest to sweep ``k``'s time plus each offset, without ``k`` itself."""
+        return {int(np.argmin(np.abs(self.times - (self.times[k] + dt)))) for dt in offsets} - {k}
+
+
+def _free_share(free: int, occupied: int, config: LidarMotionConfig) -> float:
+    """Free among free + occupied, NaN with less than ``config.min_evidence`` evidence."""
+    return free / (free + occupied) if free + occupied >= config.min_evidence else float("nan")
+
+
+def score_clusters(clusters_per_sweep: list[list[MotionCluster]], evidence: EvidenceSweeps, config: LidarMotionConfig) -> None:
     """Set each cluster's free-space motion score from the sweeps at the evidence offsets."""
-    times = np.array([s.time for s in sweeps])
-    rays: dict[int, _SweepRays] = {}
     for k, clusters in enumerate(clusters_per_sweep):
-        others = _evidence_sweeps(times, k, config.evidence_offsets_s)
+        others = evidence.around(k, config.evidence_offsets_s)
         for cluster in clusters:
             free = occupied = 0
             for j in others:
-                if j not in rays:
-                    rays[j] = _SweepRays(sweeps[j])
-                f, o = rays[j].evidence(cluster.points, config)
+                f, o = evidence.rays(j).evidence(cluster.points, config)
                 free, occupied = free + f, occupied + o
-            if free + occupied >= config.min_evidence:
-                cluster.score = free / (free + occupied)
+            cluster.score = _free_share(free, occupied, config)
 
 
-def _evidence_sweeps(times: np.ndarray, k: int, offsets: tuple[float, ...]) -> set[int]:
-    """The sweeps nearest to ``times[k] + offset`` for each offset, without ``k`` itself."""
-    return {int(np.argmin(np.abs(times - (times[k] + dt)))) for dt in offsets} - {k}
-
-
-def motion_compensated_scores(tracks: list[MotionTrack], sweeps: list[LidarSweep], config: LidarMotionConfig) -> None:
+def motion_compensated_scores(tracks: list[MotionTrack], evidence: EvidenceSweeps, config: LidarMotionConfig) -> None:
     """Set each tracked cluster's ``moved_score``: the free-space evidence of the points that the
     object does not cover itself at the evidence sweep's time, its points moved by the velocity of
     its track there (central differences of the clusters' centroids). A static object, velocity
     near 0, covers all its points: no evidence (NaN); one whose centroid drifts as the ego passes
     it leaves a strip that reads occupied."""
-    times = np.array([s.time for s in sweeps])
-    rays: dict[int, _SweepRays] = {}
+    times = evidence.times
     for track in tracks:
         if len(track.clusters) < 2:
             continue
@@ -90,14 +103,12 @@ def motion_compensated_scores(tracks: list[MotionTrack], sweeps: list[LidarSweep
         for cluster, v in zip(track.clusters, velocity):
             tree = cKDTree(cluster.points[:, :2])
             free = occupied = 0
-            for j in _evidence_sweeps(times, cluster.frame, config.evidence_offsets_s):
+            for j in evidence.around(cluster.frame, config.evidence_offsets_s):
                 shift = v * (times[j] - times[cluster.frame])
                 gap, _ = tree.query(cluster.points[:, :2] - shift, distance_upper_bound=config.self_cover_radius)
                 left = cluster.points[~np.isfinite(gap)]
                 if len(left) == 0:
                     continue
-                if j not in rays:
-                    rays[j] = _SweepRays(sweeps[j])
-                f, o = rays[j].evidence(left, config)
+                f, o = evidence.rays(j).evidence(left, config)
                 free, occupied = free + f, occupied + o
-            cluster.moved_score = free / (free + occupied) if free + occupied >= config.min_evidence else float("nan")
+            cluster.moved_score = _free_share(free, occupied, config)

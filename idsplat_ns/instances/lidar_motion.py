@@ -39,7 +39,7 @@ from idsplat_ns.data.lidar import LidarSweep
 from idsplat_ns.data.scene import Scene
 from idsplat_ns.data.tracks import class_from_size_speed
 from idsplat_ns.errors import IDSplatError
-from idsplat_ns.instances.free_space import motion_compensated_scores, score_clusters
+from idsplat_ns.instances.free_space import EvidenceSweeps, motion_compensated_scores, score_clusters
 from idsplat_ns.instances.lidar_motion_lifting import save_track_points
 from idsplat_ns.instances.masks.base import InstanceMaskSet, MaskSource, mask_filename, write_instance_map, write_labels
 
@@ -174,16 +174,16 @@ class MotionTrack:
 
     def mean_speed(self) -> float:
         """m/s of the centroid from its first to its last cluster (NaN for a single time)."""
-        t0, t1 = float(np.mean(self.clusters[0].times)), float(np.mean(self.clusters[-1].times))
-        return self.displacement() / (t1 - t0) if t1 > t0 else float("nan")
+        span = self.duration()
+        return self.displacement() / span if span > 0 else float("nan")
 
     def mean_velocity(self) -> np.ndarray:  # -> [3] m/s
         """Centroid velocity from the first to the last cluster (the last association's velocity
         for a single time)."""
-        t0, t1 = float(np.mean(self.clusters[0].times)), float(np.mean(self.clusters[-1].times))
-        if t1 <= t0:
+        span = self.duration()
+        if span <= 0:
             return self.velocity
-        return (self.clusters[-1].centroid - self.clusters[0].centroid) / (t1 - t0)
+        return (self.clusters[-1].centroid - self.clusters[0].centroid) / span
 
     def footprint(self) -> tuple[float, float]:
         """(length, width) metres on the ground along the principal axes of the cluster that holds
@@ -313,11 +313,12 @@ def moving_tracks(scene: Scene, config: LidarMotionConfig, progress: bool = Fals
     for k, sweep in enumerate(tqdm(sweeps, desc="lidar motion: clusters", unit="sweep", disable=not progress)):
         pts, times = object_points(sweep, keys, heights, config)
         clusters.append(cluster_sweep(pts, times, k, config))
-    score_clusters(clusters, sweeps, config)
-    tracks = associate(clusters, np.array([s.time for s in sweeps]), config)
+    evidence = EvidenceSweeps(sweeps)
+    score_clusters(clusters, evidence, config)
+    tracks = associate(clusters, evidence.times, config)
     long_enough = [tr for tr in tracks if len(tr.clusters) >= config.min_track_frames]
     if config.compensate_own_motion:
-        motion_compensated_scores([tr for tr in long_enough if tr.duration() >= config.compensate_min_seconds], sweeps, config)
+        motion_compensated_scores([tr for tr in long_enough if tr.duration() >= config.compensate_min_seconds], evidence, config)
     score = (lambda tr: tr.motion_score()) if config.compensate_own_motion else (lambda tr: tr.median_score())
     moving = [tr for tr in long_enough if score(tr) > config.moving_score and tr.displacement() >= config.min_displacement]
     moving = merge_parts(moving, config)

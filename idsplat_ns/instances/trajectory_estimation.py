@@ -174,14 +174,18 @@ def estimate_instance_track(
             if result.success:
                 accept(o, result.transform)
         if config.chain_neighbours > 0 and times is not None:
-            # Twice: the first pass's slides, then the chain's own (its first frames lean on the
-            # densest view, which may itself be the slid one).
-            for _ in range(2 if config.motion_outliers else 1):
-                if config.motion_outliers:
-                    for f in motion_outliers(poses, canon_frames, times, config.chain_max_deviation):
-                        k = canon_frames.index(f)
-                        del canon_pts[k], canon_feat[k], canon_cols[k], canon_frames[k]
-                        valid[f] = False
+            # Outliers twice: the first pass's slides, then the chain's own (its first frames lean
+            # on the densest view, which may itself be the slid one). The chain runs again only
+            # when the second pass dropped a frame: with nothing changed it would retry the same
+            # registrations (deterministic) and fail them again.
+            for again in (False, True) if config.motion_outliers else (False,):
+                dropped = motion_outliers(poses, canon_frames, times, config.chain_max_deviation) if config.motion_outliers else []
+                for f in dropped:
+                    k = canon_frames.index(f)
+                    del canon_pts[k], canon_feat[k], canon_cols[k], canon_frames[k]
+                    valid[f] = False
+                if again and not dropped:
+                    break
                 _register_chain(observations, poses, valid, fitness, canon_pts, canon_feat, canon_frames, times, config,
                                 lambda o: _obs_features(features, fid, o), accept, sensor_positions)
         if config.heading_flips.enabled and times is not None:
@@ -277,7 +281,9 @@ def _register_chain(
                               config.registration, source_sensors, sensor)
             # Feature matches of a far car are weak: also start from the motion's prediction, and
             # accept only poses near it (a box registered to part of itself can slide metres).
-            velocity, span = centroid_velocity(observations, times, o.frame) if config.chain_centroid_velocity else (None, 0.0)
+            # The observations' velocity is read only beside a single registered frame.
+            velocity, span = (centroid_velocity(observations, times, o.frame)
+                              if config.chain_centroid_velocity and len(canon_frames) == 1 else (None, 0.0))
             prediction = predicted_pose(poses, canon_frames, times, o.frame, velocity)
             gate = (prediction_gate(canon_frames, times, o.frame, config.chain_max_deviation, span)
                     if config.chain_gate_grows else config.chain_max_deviation)

@@ -135,7 +135,8 @@ class IDSplatPipeline(VanillaPipeline):
                 metrics, images = self.model.get_image_metrics_and_images(outputs, batch)
                 metrics["num_rays_per_sec"] = float(camera.height * camera.width) / (time() - start)
                 per_image.append(metrics)
-                for tid, (sse, count) in self.model.object_pixel_errors(outputs, batch).items():
+                # Only ns-eval reports the per-object diagnosis (the trainer's evaluations log scalars).
+                for tid, (sse, count) in (self.model.object_pixel_errors(outputs, batch) if step is None else {}).items():
                     acc = object_errors.setdefault(tid, [0.0, 0])
                     acc[0], acc[1] = acc[0] + sse, acc[1] + count
                 if output_path is not None:

@@ -6,15 +6,18 @@ with host synchronisations between blocks; on a GPU a lidar batch is then kernel
 arithmetic (0.21 s of a 0.37 s paper-configuration step on an H200, two thirds in the backward
 pass). Triton ships with CUDA builds of torch, so nothing is compiled at install time.
 
-The kernels follow the compiled CPU loops (:mod:`idsplat_ns.render.compiled_composite`) rule for
-rule: a program holds one tile's samples (lanes), walks its rows front to back with the
-transmittance, early stop, crossing count and line-of-sight sum in registers, and keeps for the
-backward pass only each sample's final transmittance and first dropped row. The backward program
-walks the rows back to front from the last composited row, recovering ``T`` before each row by
-division by ``1 - alpha`` (gsplat's backward), with ``S = sum_{m > k} g_m w_m`` in float64:
-``dL/de_k = S alpha_k / (1 - alpha_k) - g_k w_k`` (zero at the 0.999 clamp), minus
-``alpha_k g_cutoff`` for rows in front of the cut-off. Each row belongs to one tile, so its
-coefficient gradient has one writer; feature gradients gather from many tiles by atomic adds.
+The kernels follow the rules of the compiled CPU loops (:mod:`idsplat_ns.render.compiled_composite`):
+a program holds one tile's samples (lanes) and walks its rows front to back ``BLOCK_R`` at a
+time: the chunk's alphas, ``log(1 - alpha)`` and its running sum along the rows (``tl.cumsum``)
+give the transmittance before each row, the early stop and the crossing count; the feature sums
+are one ``tl.dot`` (IEEE float32). The loop ends once every live lane has ``T <= 1e-4``; kept for
+the backward pass are each lane's final transmittance and first dropped row. The backward
+program runs the chunks from the back, recovering ``T`` before each row from ``T`` after the chunk
+and a reversed running sum of ``log(1 - alpha)`` (gsplat's division by ``1 - alpha``, as sums),
+with ``S = sum_{m > k} g_m w_m`` in float64: ``dL/de_k = S alpha_k / (1 - alpha_k) - g_k w_k``
+(zero at the 0.999 clamp), minus ``alpha_k g_cutoff`` for rows in front of the cut-off. Each row
+belongs to one tile, so its coefficient gradient has one writer; feature gradients gather from
+many tiles by atomic adds.
 
 The exponent ``coeffs[row] . basis[:, s]`` is summed in float64 (its terms cancel, see
 :mod:`~idsplat_ns.render.tile_composite`), everything else per sample in float32. Features must
@@ -25,7 +28,6 @@ be float32. On CPU tensors the kernels run only under Triton's interpreter
 from __future__ import annotations
 
 import math
-import os
 
 import torch
 import triton
@@ -38,11 +40,6 @@ _E_MAX = tl.constexpr(-math.log(ALPHA_MIN) + 1.0)  # alpha is below 1/255 long b
 _ALPHA_MIN = tl.constexpr(ALPHA_MIN)
 _LOG_T_MIN = tl.constexpr(math.log(TRANSMITTANCE_MIN))
 _LOG_HALF = tl.constexpr(math.log(0.5))
-
-
-def interpreted() -> bool:
-    """Whether the kernels run in Triton's interpreter (CPU tensors; ``TRITON_INTERPRET=1``)."""
-    return os.environ.get("TRITON_INTERPRET", "0") not in ("", "0")
 
 
 @triton.jit
@@ -217,31 +214,25 @@ class TritonTileComposite(torch.autograd.Function):
         device = feats.device
         n_tiles, slots, d = plan.num_tiles, plan.slots, feats.shape[1]
         basis = plan.basis.to(torch.float64).contiguous()
-        common = dict(
-            coeffs=coeffs.detach().to(torch.float64).contiguous(), basis=basis,
-            basis_tile_stride=0 if basis.dim() == 2 else 6 * slots, feats=feats.detach().contiguous(),
-            gid=plan.gaussian_ids.contiguous(), offsets=plan.tile_offsets.contiguous(),
-            valid=(plan.slot_valid.to(torch.float32).contiguous() if plan.slot_valid is not None
-                   else torch.empty(0, device=device)),
-            cutoff=(plan.cutoff_depths.to(torch.float32).contiguous() if plan.cutoff_depths is not None
-                    else torch.empty(0, device=device)),
-            gdepth=(plan.gaussian_depths.detach().to(torch.float32).contiguous() if plan.cutoff_depths is not None
-                    else torch.empty(0, device=device)),
+        has_valid, has_cutoff = plan.slot_valid is not None, plan.cutoff_depths is not None
+        none = torch.empty(0, device=device)
+        # The plan as the kernels read it, the same in the forward and the backward pass.
+        inputs = (
+            coeffs.detach().to(torch.float64).contiguous(), basis, 0 if basis.dim() == 2 else 6 * slots,
+            feats.detach().contiguous(), plan.gaussian_ids.contiguous(), plan.tile_offsets.contiguous(),
+            plan.slot_valid.to(torch.float32).contiguous() if has_valid else none,
+            plan.cutoff_depths.to(torch.float32).contiguous() if has_cutoff else none,
+            plan.gaussian_depths.detach().to(torch.float32).contiguous() if has_cutoff else none,
         )  # fmt: skip
-        has_cutoff = plan.cutoff_depths is not None
         out = torch.empty(n_tiles * slots, d, device=device, dtype=torch.float32)
         crossing = torch.empty(n_tiles, slots, device=device, dtype=torch.int32)
         before = torch.zeros(n_tiles * slots if has_cutoff else 0, device=device, dtype=torch.float32)
         stop = torch.empty(n_tiles, slots, device=device, dtype=torch.int64)
         t_final = torch.empty(n_tiles, slots, device=device, dtype=torch.float32)
         if n_tiles > 0:
-            c = common
-            _forward_kernel[(n_tiles,)](
-                c["coeffs"], c["basis"], c["basis_tile_stride"], c["feats"], c["gid"], c["offsets"], c["valid"],
-                c["cutoff"], c["gdepth"], out, crossing, before, stop, t_final, slots, d,
-                HAS_VALID=plan.slot_valid is not None, HAS_CUTOFF=has_cutoff, **_launch_shape(slots, d),
-            )  # fmt: skip
-        ctx.common, ctx.plan_flags = common, (plan.slot_valid is not None, has_cutoff, n_tiles, slots, d)
+            _forward_kernel[(n_tiles,)](*inputs, out, crossing, before, stop, t_final, slots, d, HAS_VALID=has_valid,
+                                        HAS_CUTOFF=has_cutoff, **_launch_shape(slots, d))  # fmt: skip
+        ctx.inputs, ctx.plan_flags = inputs, (has_valid, has_cutoff, n_tiles, slots, d)
         ctx.coeffs_dtype = coeffs.dtype
         ctx.save_for_backward(stop, t_final)
         crossing = crossing.long()
@@ -253,18 +244,16 @@ class TritonTileComposite(torch.autograd.Function):
     @staticmethod
     def backward(ctx, grad_out, _grad_crossing, *grad_before_cutoff):
         stop, t_final = ctx.saved_tensors
-        c = ctx.common
+        coeffs, feats = ctx.inputs[0], ctx.inputs[3]
         has_valid, has_cutoff, n_tiles, slots, d = ctx.plan_flags
         device = grad_out.device
         g_before = torch.zeros(n_tiles * slots if has_cutoff else 0, device=device, dtype=torch.float32)
         if has_cutoff and grad_before_cutoff and grad_before_cutoff[0] is not None:
             g_before = grad_before_cutoff[0].to(torch.float32).contiguous()
-        g_coeffs = torch.zeros_like(c["coeffs"])
-        g_feats = torch.zeros_like(c["feats"])
+        g_coeffs = torch.zeros_like(coeffs)
+        g_feats = torch.zeros_like(feats)
         if n_tiles > 0:
-            _backward_kernel[(n_tiles,)](
-                c["coeffs"], c["basis"], c["basis_tile_stride"], c["feats"], c["gid"], c["offsets"], c["valid"],
-                c["cutoff"], c["gdepth"], stop, t_final, grad_out.to(torch.float32).contiguous(), g_before,
-                g_coeffs, g_feats, slots, d, HAS_VALID=has_valid, HAS_CUTOFF=has_cutoff, **_launch_shape(slots, d),
-            )  # fmt: skip
+            _backward_kernel[(n_tiles,)](*ctx.inputs, stop, t_final, grad_out.to(torch.float32).contiguous(), g_before,
+                                         g_coeffs, g_feats, slots, d, HAS_VALID=has_valid, HAS_CUTOFF=has_cutoff,
+                                         **_launch_shape(slots, d))  # fmt: skip
         return g_coeffs.to(ctx.coeffs_dtype), g_feats, None
