@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 from pathlib import Path
 
 from rich.console import Console
@@ -104,8 +105,8 @@ def main(argv: list[str] | None = None) -> None:
                 std = results.get(key + "_std")
                 table.add_row(label, f"{results[key]:.4f}", "" if std is None else f"{std:.4f}")
         console = Console()
-        if not console.is_terminal:  # piped or captured (make demo's log): rich would wrap at 80 columns
-            console = Console(width=140)
+        if not console.is_terminal and "COLUMNS" not in os.environ:
+            console = Console(width=140)  # piped or captured (make demo's log): rich would wrap at 80 columns
         console.print(table)
         tracking = tracking_table(results)
         if tracking is not None:
