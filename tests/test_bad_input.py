@@ -82,6 +82,14 @@ def _resize_image(root: Path) -> None:
         im.resize((im.width // 2, im.height // 2)).save(path)
 
 
+def _replace_image(make: Callable[[Path], None]) -> Callable[[Path], None]:
+    def damage(root: Path) -> None:
+        path = root / "camera" / "front_camera" / "05.jpg"
+        path.unlink()
+        make(path)
+    return damage
+
+
 CAM = "camera/front_camera"
 PANDASET_CASES = [
     ("nan-camera-position", _edit_json(f"{CAM}/poses.json", lambda d: _set(d[3], "position", "x", float("nan"))),
@@ -117,6 +125,10 @@ PANDASET_CASES = [
     ("cuboid-nan-position", _edit_pickle("annotations/cuboids/01.pkl.gz", _with_nan("position.y")),
      "annotations/cuboids/01.pkl.gz", ["frame 1", "position.y"]),
     ("image-size-differs", _resize_image, "camera/front_camera", ["frame 4", "image size"]),
+    ("image-missing", _replace_image(lambda p: None), f"{CAM}/05.jpg", ["the image is missing"]),
+    ("image-is-a-folder", _replace_image(lambda p: p.mkdir()), f"{CAM}/05.jpg", ["the image is a folder"]),
+    ("image-link-loop", _replace_image(lambda p: p.symlink_to(p.name)), f"{CAM}/05.jpg", ["symbolic link loop"]),
+    ("image-broken-link", _replace_image(lambda p: p.symlink_to("gone.jpg")), f"{CAM}/05.jpg", ["broken symbolic link (to gone.jpg)"]),
 ]
 
 
@@ -357,12 +369,28 @@ def test_failed_run_folder_is_removed_unless_it_has_a_checkpoint(tmp_path: Path)
         (run / "config.yml").write_text("x")
     (kept / "nerfstudio_models").mkdir()
     (kept / "nerfstudio_models" / "step-000000003.ckpt").write_text("x")
-    register_run_dir(failed, root)
-    register_run_dir(kept, root)
+    register_run_dir(failed, root / "street")
+    register_run_dir(kept, root / "street")
     assert remove_failed_runs() == [failed]
     assert not failed.exists() and kept.exists()
     register_run_dir(kept.parent / "t3", root)  # never created: nothing to do
     assert remove_failed_runs() == []
+
+
+def test_a_failed_run_removes_the_output_folder_it_created_and_nothing_older(tmp_path: Path) -> None:
+    from idsplat_ns.atomic import first_created
+
+    older = tmp_path / "outputs" / "street" / "idsplat-fast" / "t0"
+    older.mkdir(parents=True)
+    for root, run in ((tmp_path / "new" / "deeper", "t1"), (tmp_path / "outputs", "t2")):
+        run_dir = root / "street" / "idsplat-fast" / run
+        created = first_created(run_dir)
+        run_dir.mkdir(parents=True)
+        (run_dir / "config.yml").write_text("x")
+        register_run_dir(run_dir, created)
+    assert len(remove_failed_runs()) == 2
+    assert not (tmp_path / "new").exists()  # --output-dir new/deeper was made by the run: gone
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["outputs"] and older.is_dir()
 
 
 # --- Through the real command line ------------------------------------------------------------------
@@ -399,10 +427,46 @@ def test_ns_train_fails_in_one_line_and_leaves_nothing(street_copy: Path, tmp_pa
     args = method + (extra[:1] + data + extra[1:] if extra[:1] == ["idsplat-auto"] else extra + data)
     proc = _run([str(Path(sys.executable).parent / "ns-train"), *args], tmp_path)
     _assert_one_line_error(proc, named)
-    assert not out.exists() or not any(out.iterdir()), sorted(out.rglob("*"))
+    assert not out.exists(), sorted(out.rglob("*"))  # ns-train made --output-dir: it goes too
 
 
 @pytest.mark.slow
 def test_ns_eval_missing_config_is_one_line(tmp_path: Path) -> None:
     proc = _run([str(Path(sys.executable).parent / "ns-eval"), "--load-config", "/nonexistent/config.yml"], tmp_path)
     _assert_one_line_error(proc, "/nonexistent/config.yml")
+
+
+def test_empty_lidar_sweeps_are_named_once(tiny_street: Path, capsys) -> None:
+    from idsplat_ns.data.scene import note_empty_sweeps
+
+    scene = load_sequence(tiny_street)
+    for k in (2, 5):
+        scene.lidar[k] = scene.lidar[k].select(np.zeros(scene.lidar[k].num_rays, dtype=bool))  # a sweep of zero points
+    assert note_empty_sweeps(scene) == [scene.lidar[2].frame_index, scene.lidar[5].frame_index]
+    note_empty_sweeps(scene)  # said once per sequence, not per call
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "2 of 10 frames hold no point (frames 2, 5)" in err[0], err
+
+
+def test_outputs_are_checked_before_any_work(tmp_path: Path) -> None:
+    from idsplat_ns.atomic import check_writable
+    from idsplat_ns.nerfstudio.preprocess_cli import PreprocessArgs, preprocess
+
+    a_file = tmp_path / "a-file"
+    a_file.write_text("x")
+    check_writable(tmp_path / "new" / "deeper", "--output-dir", folder=True)  # made later: fine
+    assert not (tmp_path / "new").exists()
+    with pytest.raises(IDSplatError, match=f"--output-dir {a_file}: is a file, not a folder"):
+        check_writable(a_file, "--output-dir", folder=True)
+    with pytest.raises(IDSplatError, match=f"--export {tmp_path}: is a folder, not a file"):
+        check_writable(tmp_path, "--export", folder=False)
+    with pytest.raises(IDSplatError, match=f"--export {a_file / 'tracks.json'}: {a_file} is not a folder"):
+        check_writable(a_file / "tracks.json", "--export", folder=False)
+    # idsplat-preprocess says so before it reads the data (here: none at that path at all).
+    with pytest.raises(IDSplatError, match="--export"):
+        preprocess(PreprocessArgs(data=tmp_path / "no-such-street", export=a_file / "tracks.json"))
+    if os.geteuid() != 0:  # root writes anywhere: a read-only folder stops only other users
+        locked = tmp_path / "locked"
+        locked.mkdir(mode=0o500)
+        with pytest.raises(IDSplatError, match="is not writable"):
+            check_writable(locked / "tracks.json", "--export", folder=False)

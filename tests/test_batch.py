@@ -20,8 +20,9 @@ from pathlib import Path
 import pytest
 
 from idsplat_ns.batch.commands import split_user_options, train_command, preprocess_command
-from idsplat_ns.batch.layout import SequencePaths, checkpoint_step, latest_checkpoint
-from idsplat_ns.batch.sequences import Sequence, parse_sequence_file
+from idsplat_ns.batch.layout import SequencePaths
+from idsplat_ns.runs.checkpoints import checkpoint_step, latest_complete
+from idsplat_ns.batch.sequences import Sequence, load_sequences, parse_sequence_file
 from idsplat_ns.errors import IDSplatError
 
 METHOD = "idsplat-fast"
@@ -86,7 +87,7 @@ def test_failure_is_isolated_and_the_table_has_the_others(first_batch, streets) 
         assert float(row["dpsnr"]) == pytest.approx(results["dpsnr"])
         assert 5.0 < results["psnr"] < 40.0
         psnr.append(results["psnr"])
-        ckpt = latest_checkpoint(SequencePaths(out, name, METHOD))
+        ckpt = latest_complete(SequencePaths(out, name, METHOD).checkpoints)
         assert ckpt is not None and checkpoint_step(ckpt) == 4  # 5 steps: 0..4
         for step in ("preprocess", "train", "eval"):
             assert (out / name / METHOD / f"{step}.log").stat().st_size > 0
@@ -150,7 +151,7 @@ def test_killed_batch_resumes_the_training(streets, tmp_path: Path) -> None:
     paths = SequencePaths(out, "synth_tiny_0", METHOD)
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     try:
-        _wait_for(lambda: latest_checkpoint(paths) is not None or proc.poll() is not None, 300, "a checkpoint")
+        _wait_for(lambda: latest_complete(paths.checkpoints) is not None or proc.poll() is not None, 300, "a checkpoint")
         assert proc.poll() is None, "the batch ended before it could be killed"
         os.kill(proc.pid, signal.SIGKILL)  # the driver only: Ray and the training must go with it
         proc.wait()
@@ -160,7 +161,7 @@ def test_killed_batch_resumes_the_training(streets, tmp_path: Path) -> None:
     # Ray takes a second or two to notice its driver is gone; the training goes on until then, so
     # the run is long enough (60 steps, about 5 per second here) not to end in that window.
     _wait_for(lambda: not _processes_mentioning(str(out)), 30, "the killed batch's training to end")
-    killed_at = checkpoint_step(latest_checkpoint(paths))
+    killed_at = checkpoint_step(latest_complete(paths.checkpoints))
     assert killed_at < LAST_STEP
 
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=600, env={**os.environ, "COLUMNS": "200"})
@@ -169,14 +170,15 @@ def test_killed_batch_resumes_the_training(streets, tmp_path: Path) -> None:
     rerun = log[log.rindex("synth_tiny_0: training"):]
     assert "resume from step" in rerun and "preprocessing" not in rerun
     assert "Resuming from" in paths.log("train").read_text()
-    assert checkpoint_step(latest_checkpoint(paths)) == LAST_STEP  # the run's steps in all, not that many more
+    assert checkpoint_step(latest_complete(paths.checkpoints)) == LAST_STEP  # the run's steps in all, not that many more
     assert json.loads(paths.eval_json.read_text())["results"]["psnr"] > 5.0
 
 
 def test_sequence_file_and_commands(tmp_path: Path) -> None:
     (tmp_path / "a").mkdir()
+    (tmp_path / "waymo").mkdir()
     listing = tmp_path / "list.txt"
-    listing.write_text("# comment\n\na   pandaset-10\n/data/waymo streetgs --segment segment-123_with_camera_labels\n"
+    listing.write_text(f"# comment\n\na   pandaset-10\n{tmp_path / 'waymo'} streetgs --segment segment-123_with_camera_labels\n"
                        "a - --cameras front_camera\n")
     seqs = parse_sequence_file(listing)
     assert [s.name for s in seqs] == ["a", "123", "a-2"]
@@ -185,6 +187,11 @@ def test_sequence_file_and_commands(tmp_path: Path) -> None:
     listing.write_text("a bogus-protocol\n")
     with pytest.raises(IDSplatError, match="line 1: unknown protocol 'bogus-protocol'"):
         parse_sequence_file(listing)
+    listing.write_text("a\nmissing-street\n")  # found before any task starts, naming the line
+    with pytest.raises(IDSplatError, match=f"line 2: {tmp_path / 'missing-street'}: no such file or folder"):
+        parse_sequence_file(listing)
+    with pytest.raises(IDSplatError, match=r"10 of the 10 pandaset-10 sequences are not there \(001, 011, 016, ...\)"):
+        load_sequences("pandaset-10", tmp_path)
 
     user = split_user_options(["--max-num-iterations", "5", "--pipeline.datamanager.preprocess.masks.kind",
                                "ground-truth", "idsplat-auto", "--cameras", "front_camera", "--downscale-factor", "2"])
@@ -245,7 +252,7 @@ def test_one_line_error_of_a_step(tmp_path: Path) -> None:
 def test_a_local_ray_that_times_out_at_startup_is_started_again(monkeypatch) -> None:
     import types
 
-    from idsplat_ns.batch.runner import STARTUP_ATTEMPTS, RayStart, start_ray
+    from idsplat_ns.batch.ray_cluster import STARTUP_ATTEMPTS, RayStart, start_ray
     from idsplat_ns.errors import IDSplatError
 
     calls = []
@@ -266,3 +273,65 @@ def test_a_local_ray_that_times_out_at_startup_is_started_again(monkeypatch) -> 
     with pytest.raises(IDSplatError, match="did not start in 3 tries"):
         start_ray(RayStart())
     assert calls.count("init") == STARTUP_ATTEMPTS == 3
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.mark.slow
+def test_address_of_a_cluster_with_token_authentication(streets, tmp_path: Path) -> None:
+    """A cluster started with ``ray start --head`` and a token (Ray 2.59+ does so whenever a token
+    exists): a driver without RAY_AUTH_MODE=token is told so in one line; with it, the tasks run there."""
+    import secrets
+    import socket
+
+    import tempfile
+
+    port = _free_port()
+    # Its own Ray temp folder (short: Ray's socket paths must fit 107 characters), so that the
+    # head's record of itself never reaches another Ray on this machine.
+    ray_tmp = Path(tempfile.mkdtemp(prefix="ray-", dir="/tmp"))
+    token = tmp_path / "auth_token"
+    token.write_text(secrets.token_hex(32))
+    env = {**os.environ, "RAY_AUTH_MODE": "token", "RAY_AUTH_TOKEN_PATH": str(token), "RAY_USAGE_STATS_ENABLED": "0",
+           "COLUMNS": "200"}
+    head = subprocess.Popen([_bin("ray"), "start", "--head", "--port", str(port), "--num-cpus", "2",
+                             "--include-dashboard=false", "--disable-usage-stats", "--temp-dir", str(ray_tmp), "--block"],
+                            env=env, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        def listening() -> bool:
+            with socket.socket() as s:
+                return s.connect_ex(("127.0.0.1", port)) == 0
+
+        _wait_for(lambda: listening() or head.poll() is not None, 180, "the Ray head")
+        assert head.poll() is None, "ray start --head ended"
+        seq_file = tmp_path / "sequences.txt"
+        seq_file.write_text(f"{streets['broken']}\n")  # fails in its first task: enough to show where tasks run
+        command = [_bin("idsplat-batch"), "--sequences", str(seq_file), "--output-dir", str(tmp_path / "out"),
+                   "--method", METHOD, "--address", f"127.0.0.1:{port}"]
+        without = {k: v for k, v in env.items() if k != "RAY_AUTH_MODE"}
+        refused = subprocess.run(command, capture_output=True, text=True, timeout=300, env=without)
+        last = refused.stderr.strip().splitlines()[-1]
+        assert refused.returncode == 2 and "Traceback" not in refused.stderr, refused.stderr[-2000:]
+        assert last.startswith(f"error: --address 127.0.0.1:{port}: the cluster uses Ray token authentication") and \
+            "RAY_AUTH_MODE=token" in last and str(token) in last, last
+        assert "InvalidAuthToken" not in refused.stderr  # Ray's ~20 retry lines are summed up in that one line
+
+        ran = subprocess.run(command, capture_output=True, text=True, timeout=600, env=env)
+        assert ran.returncode == 1, ran.stdout[-2000:] + ran.stderr[-2000:]  # the broken street's own failure
+        assert ran.stdout.strip().splitlines()[-1] == "0 evaluated, 0 skipped (already evaluated), 1 failed: broken"
+        status = json.loads((tmp_path / "out" / "broken" / METHOD / "status.json").read_text())
+        assert status["step"] == "preprocess" and "front_camera/poses.json" in status["error"]
+    finally:
+        os.killpg(head.pid, signal.SIGTERM)
+        try:
+            head.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            os.killpg(head.pid, signal.SIGKILL)
+            head.wait()
+        shutil.rmtree(ray_tmp, ignore_errors=True)

@@ -16,7 +16,7 @@ import torch
 
 from idsplat_ns.atomic import TMP_MARK
 from idsplat_ns.model.gaussians import GaussianSet
-from idsplat_ns.nerfstudio.trainer import checkpoint_step, latest_checkpoint
+from idsplat_ns.runs.checkpoints import DAMAGED_DIR, checkpoint_step, latest_complete, list_checkpoints
 
 STEPS, SAVE_EVERY = 16, 8
 
@@ -92,7 +92,7 @@ def test_resume_restores_step_optimizer_and_gaussians(tiny_street: Path, tmp_pat
     assert compared >= 2 * len(GaussianSet.PARAM_NAMES), compared  # Adam's moments of every Gaussian group at least
     trainer.train()
 
-    final = latest_checkpoint(folder)
+    final = latest_complete(folder)
     assert checkpoint_step(final) == STEPS - 1
     moved = (_means(final)[:grown] - _means(ckpts[0])).abs().max().item()
     assert moved > 0, "the Gaussians did not train after the resume"
@@ -128,23 +128,31 @@ def test_kill_during_training_then_the_resume_command(tiny_street: Path, tmp_pat
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     run = tmp_path / "killed" / "idsplat-fast" / "run"
     proc = subprocess.Popen(train, env=env, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    _kill_when(proc, lambda: latest_checkpoint(run / "nerfstudio_models") is not None, timeout=300)
-    before = checkpoint_step(latest_checkpoint(run / "nerfstudio_models"))
-    assert before < 19
+    models = run / "nerfstudio_models"
+    # Killed once the run keeps two checkpoints; then its newest is damaged (a copy cut short).
+    _kill_when(proc, lambda: len(list_checkpoints(models)) >= 2, timeout=300)  # renamed only once read back
+    newest, previous = list_checkpoints(models)[:2]
+    before = checkpoint_step(previous)
+    assert before < checkpoint_step(newest) < 19
+    newest.write_bytes(newest.read_bytes()[:100])
 
-    # The documented resume command: the run's own config.
+    # The documented resume command: the run's own config. It resumes from the previous checkpoint.
     done = subprocess.run([_bin("ns-train"), "idsplat-fast", "--load-config", str(run / "config.yml")],
                           env=env, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-2000:]
-    assert f"(step {before}): {20 - before - 1} of 20 steps left" in " ".join(done.stdout.split())
-    assert checkpoint_step(latest_checkpoint(run / "nerfstudio_models")) == 19
+    said = " ".join(done.stdout.split())
+    assert f"{newest.name}: unreadable checkpoint" in said and f"resuming from {previous.name} instead" in said, said[-2000:]
+    assert f"(step {before}): {20 - before - 1} of 20 steps left" in said
+    assert checkpoint_step(latest_complete(models)) == 19
+    assert [checkpoint_step(p) for p in list_checkpoints(models)] == [19, 15]  # the newest two are kept
+    assert (run / DAMAGED_DIR / newest.name).is_file()  # set aside, not deleted
 
     # The same command on the finished run trains nothing and ends cleanly.
     again = subprocess.run([_bin("ns-train"), "idsplat-fast", "--load-config", str(run / "config.yml")],
                            env=env, capture_output=True, text=True, timeout=600)
     assert again.returncode == 0, again.stderr[-2000:]
     assert "nothing to train" in " ".join(again.stdout.split())
-    assert checkpoint_step(latest_checkpoint(run / "nerfstudio_models")) == 19
+    assert checkpoint_step(latest_complete(run / "nerfstudio_models")) == 19
 
 
 @pytest.mark.slow

@@ -107,6 +107,11 @@ def test_import_interpolates_between_times_and_finds_points_in_a_box(scene_and_t
     ('{"instances": [{"id": 1, "times": [0, 1], "poses": [[[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]]}]}', "2 times and 1 poses"),
     ('{"instances": [{"id": 1, "times": [1, 0], "poses": [%s, %s], "size": [1, 1, 1]}]}' % ((str(np.eye(4).tolist()),) * 2), "increase strictly"),
     ('{"instances": [{"id": 1, "times": [0], "poses": [[1, 2]]}]}', "shape \\[N, 4, 4\\]"),
+    # Named by its id, not its place in the list; by its place only when it has no usable id.
+    ('{"instances": [{"id": 1, "times": [0], "poses": [%s], "size": [1, 1, 1]}, {"id": 7, "times": [0], "poses": [[1]]}]}'
+     % str(np.eye(4).tolist()), "bad.json: instance id 7: 'poses' must be"),
+    ('{"instances": [{"id": 1, "times": [0], "poses": [%s], "size": [1, 1, 1]}, {"id": "7"}]}' % str(np.eye(4).tolist()),
+     "bad.json: instances\\[1\\]: needs an integer 'id'"),
     ('{"instances": [{"id": 1, "times": [0], "poses": [%s]}]}' % str(np.eye(4).tolist()), "canonical_points' or a box 'size'"),
     ('{"instances": [{"id": 1, "times": [0], "poses": [%s], "canonical_points": [[0, 0, 0], [1, 0, 0]], '
      '"canonical_colors": [[0, 0, 0]]}]}' % str(np.eye(4).tolist()), "one \\[r, g, b\\] in 0-255 per canonical point \\(2\\), got 1"),

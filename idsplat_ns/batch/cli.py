@@ -133,7 +133,8 @@ def _run_on_ray(plans: list[SequencePlan], args: argparse.Namespace, resources: 
     import ray
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from idsplat_ns.batch.runner import RayStart, Reporter, install_sigterm, run_plans, start_ray
+    from idsplat_ns.batch.ray_cluster import RayStart, start_ray
+    from idsplat_ns.batch.runner import Reporter, install_sigterm, run_plans
 
     try:
         start_ray(RayStart(args.address, args.num_cpus, args.num_gpus, args.object_store_mb))
@@ -164,8 +165,9 @@ def _report(plans: list[SequencePlan], outcome: Outcome, method: str, output_dir
         console.print(f"table: {csv_path}" + (f"  plot: {plot}" if plot else "  (no DPSNR: no plot)"), markup=False)
     for name, error in outcome.failed.items():
         console.print(f"failed: {name}: {error}", markup=False)
+    failed = f": {', '.join(outcome.failed)}" if outcome.failed else ""
     console.print(f"{len(outcome.done)} evaluated, {len(outcome.skipped)} skipped (already evaluated), "
-                  f"{len(outcome.failed)} failed", markup=False)
+                  f"{len(outcome.failed)} failed{failed}", markup=False)
     return len(outcome.failed)
 
 

@@ -16,7 +16,6 @@ so ``<sequence>/<method>/run`` is nerfstudio's own ``experiment/method/timestamp
 from __future__ import annotations
 
 import json
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional
@@ -62,24 +61,6 @@ class SequencePaths:
 
     def log(self, step: str) -> Path:
         return self.folder / f"{step}.log"
-
-
-def checkpoint_step(path: Path) -> int:
-    """The step in nerfstudio's checkpoint name ``step-000001234.ckpt``."""
-    return int(path.stem.split("-", 1)[1])
-
-
-def latest_checkpoint(paths: SequencePaths) -> Optional[Path]:
-    """The newest complete checkpoint of the run, or None.
-
-    nerfstudio writes a checkpoint in place (no temporary name) and deletes the older one only
-    after, so a kill while saving leaves a truncated newest file beside the previous complete one.
-    A checkpoint is a zip archive whose index is written last: a truncated one is not a zip.
-    """
-    if not paths.checkpoints.is_dir():
-        return None
-    found = sorted(paths.checkpoints.glob("step-*.ckpt"), key=checkpoint_step, reverse=True)
-    return next((p for p in found if zipfile.is_zipfile(p)), None)
 
 
 def write_status(paths: SequencePaths, status: dict) -> None:

@@ -15,7 +15,8 @@ from pathlib import Path
 from typing import Callable, Optional
 
 from idsplat_ns.batch.commands import UserOptions, eval_command, preprocess_command, train_command
-from idsplat_ns.batch.layout import SequencePaths, checkpoint_step, latest_checkpoint, read_eval
+from idsplat_ns.batch.layout import SequencePaths, read_eval
+from idsplat_ns.runs.checkpoints import checkpoint_step, latest_complete
 from idsplat_ns.batch.sequences import Sequence
 
 STEPS = ("preprocess", "train", "eval")
@@ -55,7 +56,7 @@ def plan_sequence(seq: Sequence, method: str, user: UserOptions, output_dir: Pat
     evaluate = Step("eval", tuple(eval_command(paths.config, paths.folder / EVAL_PARTIAL)), "")
     if read_eval(paths) is not None:
         return SequencePlan(seq, paths, ())
-    checkpoint = latest_checkpoint(paths)
+    checkpoint = latest_complete(paths.checkpoints)
     if checkpoint is not None and paths.config.is_file():
         last = checkpoint_step(checkpoint)
         left = total_steps() - 1 - last  # nerfstudio's last checkpoint of N steps is step N-1

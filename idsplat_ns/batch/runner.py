@@ -6,7 +6,6 @@ CPU-bound preprocessing runs beside another's training.
 
 from __future__ import annotations
 
-import os
 import signal
 import time
 from dataclasses import dataclass, field
@@ -37,21 +36,6 @@ class StepResources:
         return opts
 
 
-@dataclass(frozen=True)
-class RayStart:
-    """How the driver gets a Ray cluster."""
-
-    address: Optional[str] = None
-    """An existing cluster's address (``ray://host:10001``, ``host:6379`` or ``auto``); None: start
-    a local one for this command."""
-    num_cpus: Optional[int] = None
-    """Local cluster: CPU cores Ray may use (default: all)."""
-    num_gpus: Optional[int] = None
-    """Local cluster: GPUs Ray may use (default: those it finds)."""
-    object_store_mb: int = 128
-    """Local cluster: object store size; the tasks exchange only small results."""
-
-
 @dataclass
 class Outcome:
     """How each sequence of a batch ended."""
@@ -62,43 +46,6 @@ class Outcome:
     """Already evaluated before."""
     failed: dict[str, str] = field(default_factory=dict)
     """Sequence -> ``<step>: <one-line error>``."""
-
-
-STARTUP_ATTEMPTS = 3
-"""Tries to start a local Ray before giving up."""
-
-
-def start_ray(start: RayStart) -> None:
-    """Connect to ``start.address`` or start a local Ray instance sized for this command."""
-    import logging
-
-    import ray
-
-    # Read at start-up by this process and the Ray processes it spawns: no usage report is sent.
-    os.environ["RAY_USAGE_STATS_ENABLED"] = "0"
-    common = {"logging_level": logging.WARNING, "log_to_driver": False, "configure_logging": True}
-    if start.address is not None:
-        try:
-            ray.init(address=start.address, **common)
-        except ConnectionError as err:
-            raise IDSplatError(f"--address {start.address}: cannot connect to a Ray cluster ({err}); start one with "
-                               "`ray start --head` or drop --address") from None
-        return
-    # A local Ray gives its raylet a fixed 30 s to register; on a loaded machine that can run out,
-    # and a second start usually makes it.
-    for attempt in range(STARTUP_ATTEMPTS):
-        try:
-            ray.init(num_cpus=start.num_cpus or os.cpu_count(), num_gpus=start.num_gpus, include_dashboard=False,
-                     object_store_memory=start.object_store_mb * 2**20, **common)
-            return
-        except Exception as err:  # Ray raises a bare Exception for this timeout
-            if "timed out during startup" not in str(err):
-                raise
-            ray.shutdown()
-            if attempt == STARTUP_ATTEMPTS - 1:
-                raise IDSplatError(f"a local Ray did not start in {STARTUP_ATTEMPTS} tries (its raylet has 30 s to "
-                                   "register; the machine is overloaded); run again when it is less busy, or "
-                                   "start one with `ray start --head` and pass --address auto") from None
 
 
 def check_feasible(resources: dict[str, dict]) -> None:

@@ -89,6 +89,8 @@ def parse_sequence_file(path: Path) -> list[Sequence]:
         if protocol is not None and protocol not in PROTOCOL_NAMES:
             raise IDSplatError(f"{where}: unknown protocol {protocol!r}; use one of {', '.join(PROTOCOL_NAMES)} or '-'")
         args = tuple(rest)
+        if not data.exists():  # found now, before any task starts, not inside one
+            raise IDSplatError(f"{where}: {data}: no such file or folder; fix the path or remove the line")
         out.append(Sequence(sequence_name(data, args), data.resolve(), protocol, args))
     if not out:
         raise IDSplatError(f"--sequences {path}: lists no sequence; write one path a line")
@@ -103,7 +105,7 @@ def protocol_sequences(protocol: str, data_root: Optional[Path]) -> list[Sequenc
     if not root.is_dir():
         raise IDSplatError(f"--data-root {root}: no such folder; give the folder that holds the {protocol} sequences")
     if protocol_dataset(protocol) == "pandaset":
-        return [Sequence(seq, root / seq, protocol) for seq in PANDASET_10]
+        return _all_present([Sequence(seq, root / seq, protocol) for seq in PANDASET_10], root, protocol)
 
     from idsplat_ns.data.formats import is_v2_root
     from idsplat_ns.data.waymo.splits import experiment_settings, load_split
@@ -114,9 +116,18 @@ def protocol_sequences(protocol: str, data_root: Optional[Path]) -> list[Sequenc
         if is_v2_root(root):
             out.append(Sequence(spec.context_name, root, protocol, ("--context-name", spec.context_name)))
         else:
-            # A missing file is the sequence's own failure (recorded, the others go on), not the batch's.
             out.append(Sequence(spec.context_name, root / f"{spec.segment}_with_camera_labels.tfrecord", protocol))
-    return out
+    return _all_present(out, root, protocol)
+
+
+def _all_present(sequences: list[Sequence], root: Path, protocol: str) -> list[Sequence]:
+    """``sequences``, once each one's data is found under ``root`` (checked before any task starts)."""
+    missing = [s.data.name for s in sequences if not s.data.exists()]
+    if missing:
+        shown = ", ".join(missing[:3]) + (", ..." if len(missing) > 3 else "")
+        raise IDSplatError(f"--data-root {root}: {len(missing)} of the {len(sequences)} {protocol} sequences are not there "
+                           f"({shown}); add them, or list the ones you have in a --sequences file")
+    return sequences
 
 
 def unique_names(sequences: list[Sequence], where: str) -> list[Sequence]:

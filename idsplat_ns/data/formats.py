@@ -75,7 +75,7 @@ def detect_data(path: Path, segment: Optional[str] = None, context_name: Optiona
     """Recognise the format of ``path`` (see the module docstring); one-line error otherwise."""
     path = Path(path).expanduser()
     if not path.exists():
-        raise IDSplatError(f"{path}: no such file or folder; pass --data to a PandaSet sequence, a Waymo v1 .tfrecord or a v2 root")
+        raise IDSplatError(f"{path}: no such file or folder; pass --data to a PandaSet sequence, a Waymo v1 .tfrecord or a v2 root (a trained run reads it from data: in its config.yml: move the data back or edit that line)")
     if path.is_file():
         if path.suffix != ".tfrecord":
             raise IDSplatError(f"{path}: a file that is not a .tfrecord; pass a Waymo v1 segment file or a sequence folder")

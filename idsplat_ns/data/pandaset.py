@@ -38,6 +38,7 @@ from idsplat_ns.data.validation import (
     check_intrinsics,
     check_pose,
     check_quaternion,
+    check_regular_file,
     check_timestamps,
 )
 from idsplat_ns.errors import IDSplatError
@@ -272,8 +273,7 @@ def _load_images(root, frames, cameras, cam_meta, world_from_raw, time_origin, s
         for cam in cameras:
             intr, poses, stamps = cam_meta[cam]
             path = root / "camera" / cam / f"{f:02d}.jpg"
-            if not path.is_file():
-                raise IDSplatError(f"{path}: missing image; the PandaSet sequence is incomplete")
+            check_regular_file(path, "the image", "the PandaSet sequence is incomplete")
             width, height = _image_size(path)
             if cam not in first_size:  # the principal point can only be checked against a real size
                 first_size[cam] = (int(f), (width, height))

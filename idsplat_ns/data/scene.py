@@ -17,6 +17,7 @@ from idsplat_ns.data.camera import CameraImage
 from idsplat_ns.data.geometry import make_pose
 from idsplat_ns.data.lidar import LidarSweep
 from idsplat_ns.data.tracks import ObjectTrack
+from idsplat_ns.data.validation import warn
 
 
 def recentring_transform(first_ego_pose_raw: np.ndarray) -> np.ndarray:
@@ -132,3 +133,14 @@ class Scene:
             f"{len(self.images)} images from {len(self.camera_names)} cameras, "
             f"{len(self.lidar)} lidar sweeps ({rays} rays), {len(self.tracks)} GT tracks"
         )
+
+
+def note_empty_sweeps(scene: Scene) -> list[int]:
+    """Say once (stderr) which frames' lidar sweeps returned no point: training goes on without
+    them, but a user should know their lidar is missing there. Returns those frame indices."""
+    empty = [s.frame_index for s in scene.lidar if not np.any(s.returned)]
+    if empty:
+        shown = ", ".join(str(f) for f in empty[:10]) + (", ..." if len(empty) > 10 else "")
+        warn(f"{scene.name}: the lidar sweeps of {len(empty)} of {len(scene.lidar)} frames hold no point (frames {shown}); "
+             "training goes on without their points", key=f"empty-sweeps:{scene.name}")
+    return empty

@@ -8,7 +8,10 @@ the file and frame; the checks themselves know nothing about formats.
 
 from __future__ import annotations
 
+import errno
+import os
 import sys
+from pathlib import Path
 from typing import Iterable, Mapping, Optional, Sequence
 
 import numpy as np
@@ -99,6 +102,25 @@ def check_quaternion(q: np.ndarray, where: str, field: str, frame: Optional[int]
     if abs(norm - 1.0) > QUATERNION_WARN_TOL:
         warn(f"{_at(where, frame, field)}: quaternion norm {norm:.4g}, not 1; renormalised (further ones not shown)", f"{where}:{field}")
     return q / norm
+
+
+def check_regular_file(path: Path, what: str, hint: str) -> None:
+    """One line unless ``path`` is a regular file (a link to one included): says what it is instead
+    (missing, a folder, a broken link, a link loop), then ``hint``."""
+    path = Path(path)
+    try:
+        if path.is_file():
+            return
+        os.stat(path)  # exists but is not a file: a folder, a device...
+        kind = "a folder" if path.is_dir() else "not a regular file"
+    except OSError as err:
+        if err.errno == errno.ELOOP:
+            kind = "a symbolic link loop"
+        elif path.is_symlink():
+            kind = f"a broken symbolic link (to {os.readlink(path)})"
+        else:
+            kind = "missing"
+    raise IDSplatError(f"{path}: {what} is {kind}; {hint}")
 
 
 def check_intrinsics(

@@ -121,8 +121,10 @@ def tracks_from_json(path: Path, scene: Scene) -> InstanceTracks:
     frame_times = np.asarray(scene.frame_times, dtype=np.float64)
     instances, seen_ids = [], set()
     for n, entry in enumerate(data["instances"]):
-        where = f"{path}: instance {n}"
-        if not isinstance(entry, dict) or not isinstance(entry.get("id"), int) or entry["id"] < 1:
+        has_id = isinstance(entry, dict) and isinstance(entry.get("id"), int) and not isinstance(entry["id"], bool)
+        # Named by its id, as the user's own tools and ns-eval name it; by position only without one.
+        where = f"{path}: instance id {entry['id']}" if has_id else f"{path}: instances[{n}]"
+        if not has_id or entry["id"] < 1:
             raise IDSplatError(f"{where}: needs an integer 'id' >= 1 (0 is the static background)")
         if entry["id"] in seen_ids:
             raise IDSplatError(f"{where}: id {entry['id']} appears twice; instance ids must be unique")

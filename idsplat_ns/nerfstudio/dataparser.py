@@ -20,7 +20,7 @@ from nerfstudio.data.scene_box import SceneBox
 from rich.console import Console
 
 from idsplat_ns.data.images import undistorted_view
-from idsplat_ns.data.scene import Scene
+from idsplat_ns.data.scene import Scene, note_empty_sweeps
 from idsplat_ns.data.split import split_frames
 from idsplat_ns.errors import IDSplatError
 
@@ -266,6 +266,7 @@ class IDSplatDataParser(DataParser):
     def scene(self) -> Scene:
         if self._scene is None:
             self._scene = self.resolved.load_scene()
+            note_empty_sweeps(self._scene)
         return self._scene
 
     def _generate_dataparser_outputs(self, split: str = "train", **kwargs) -> DataparserOutputs:

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from idsplat_ns.atomic import check_writable
 from idsplat_ns.errors import IDSplatError, run_cli
 
 
@@ -73,6 +74,7 @@ def _check_args(args: argparse.Namespace) -> None:
         raise IDSplatError("--with-ground-truth needs the recorded viewpoint: drop --shift-left/--shift-up")
     if not args.load_config.is_file():
         raise IDSplatError(f"--load-config {args.load_config}: no such file; give a run's config.yml")
+    check_writable(args.output, "--output", folder=args.output.suffix.lower() != ".mp4")
 
 
 def _datasets(pipeline) -> list:
@@ -147,6 +149,10 @@ def write_frames(frames: list[np.ndarray], output: Path, fps: float) -> Path:
 def run(args: argparse.Namespace) -> Path:
     _check_args(args)
     from nerfstudio.utils.eval_utils import eval_setup
+
+    from idsplat_ns.nerfstudio.run_files import check_run
+
+    check_run(args.load_config)  # nerfstudio's loader would end in a traceback on another method's run or a damaged checkpoint
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     _, pipeline, _, _ = eval_setup(args.load_config, test_mode="test")

@@ -16,6 +16,7 @@ from pathlib import Path
 from rich.console import Console
 from rich.table import Table
 
+from idsplat_ns.atomic import check_writable
 from idsplat_ns.errors import IDSplatError, run_cli
 
 EPILOG = """examples:
@@ -140,7 +141,11 @@ def run(args: argparse.Namespace) -> Path | None:
         raise IDSplatError("nothing to do: give --list or an edit (--remove, --move, --retime, --duplicate)")
     if edits_given and args.output_dir is None:
         raise IDSplatError("--output-dir is needed to write the edited run; give a new folder")
+    if args.points and not args.list:
+        raise IDSplatError("--points goes with --list")
     check_edit_values(args)
+    if edits_given:
+        check_writable(args.output_dir, "--output-dir", folder=True)
     trained = load_run(args.load_config)
     try:
         scene = SceneTensors.from_state_dict(trained.pipeline_state, SCENE_PREFIX)
@@ -152,8 +157,6 @@ def run(args: argparse.Namespace) -> Path | None:
     if not console.is_terminal:  # piped or captured: rich would wrap the table at 80 columns
         console = Console(width=140)
     done = apply_edits(scene, args)
-    if args.points and not args.list:
-        raise IDSplatError("--points goes with --list")
     if args.list:
         print_instances(scene, console, instance_points(trained.config) if args.points else None)
     if not edits_given:

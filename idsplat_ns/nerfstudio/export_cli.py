@@ -21,6 +21,7 @@ from pathlib import Path
 
 from rich.console import Console
 
+from idsplat_ns.atomic import check_writable, removed_on_failure
 from idsplat_ns.errors import IDSplatError, run_cli
 
 COLOUR_NOTE = ("f_dc holds the base colour (features_rgb) as a degree-0 SH; the model's screen-space "
@@ -54,18 +55,30 @@ def _trajectory_record(scene, z: int, ply: str, margin: float) -> dict:
 
 def export(args: argparse.Namespace) -> dict:
     from idsplat_ns.model.editing import SceneTensors
-    from idsplat_ns.model.ply_export import scene_at_time, select, splat_records, write_ply
-    from idsplat_ns.model.trajectories import default_span_margin
     from idsplat_ns.nerfstudio.run_files import SCENE_PREFIX, load_run
 
     if args.sh_rest < 0:
         raise IDSplatError(f"--sh-rest {args.sh_rest}: must be 0 or more")
+    check_writable(args.output_dir, "--output-dir", folder=True)
     run = load_run(args.load_config)
     scene = SceneTensors.from_state_dict(run.pipeline_state, SCENE_PREFIX)
-    out = Path(args.output_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    with removed_on_failure(Path(args.output_dir)) as out:
+        out.mkdir(parents=True, exist_ok=True)
+        record, num_static = _write(scene, run, out, args)
+    console = Console()
+    console.print(f"wrote {out / 'static.ply'} ({num_static} Gaussians), {len(record['instances'])} instance .ply files, "
+                  f"{out / record['scene_ply']} and {out / 'trajectories.json'}")
+    return record
+
+
+def _write(scene, run, out: Path, args: argparse.Namespace) -> tuple[dict, int]:
+    """The .ply files and trajectories.json of ``scene`` in ``out``; returns the JSON record and the
+    number of static Gaussians."""
+    from idsplat_ns.model.ply_export import scene_at_time, select, splat_records, write_ply
+    from idsplat_ns.model.trajectories import default_span_margin
+
     g, ids = scene.gaussians, scene.gaussians["instance_ids"]
-    files = {"static": str(write_ply(out / "static.ply", splat_records(select(g, ids == 0), args.sh_rest)))}
+    write_ply(out / "static.ply", splat_records(select(g, ids == 0), args.sh_rest))
     instances = []
     if scene.trajectories is not None:
         times = scene.trajectories["frame_times"].double().numpy()
@@ -83,10 +96,7 @@ def export(args: argparse.Namespace) -> dict:
               "time_unit": "seconds since the sequence start", "span_margin": margin, "scene_time": time,
               "scene_ply": scene_name, "static_ply": "static.ply", "instances": instances}
     (out / "trajectories.json").write_text(json.dumps(record, indent=1))
-    console = Console()
-    console.print(f"wrote {out / 'static.ply'} ({int((ids == 0).sum())} Gaussians), {len(instances)} instance .ply files, "
-                  f"{out / scene_name} and {out / 'trajectories.json'}")
-    return record
+    return record, int((ids == 0).sum())
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -394,10 +394,12 @@ class IDSplatModel(Model):
 
     @torch.no_grad()
     def get_outputs_for_camera(self, camera: Cameras, obb_box=None) -> Dict[str, Tensor]:  # type: ignore[override]
-        """The render outputs plus ``instances`` (the ID map in the categorical instance colours)
-        when the model has instances; viewer renders also get the panel's highlight."""
+        """The rendered images plus ``instances`` (the ID map in the categorical instance colours)
+        when the model has instances; viewer renders also get the panel's highlight. Only images
+        [H, W, C]: ``ns-render dataset`` and the viewer write every output as one (the background
+        colour [3] stays in the training outputs)."""
         camera = camera.to(self.device)
-        outputs = self.get_outputs(camera)
+        outputs = {k: v for k, v in self.get_outputs(camera).items() if v.dim() == 3}
         if self.scene_model.has_instances:
             outputs["instances"] = instance_colors(outputs["instance_id"][..., 0])
         if in_viewer_render():

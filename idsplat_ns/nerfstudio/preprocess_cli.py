@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal, Optional
 
+from idsplat_ns.atomic import check_writable
 from idsplat_ns.errors import run_cli
 from idsplat_ns.instances.runner import PreprocessConfig
 
@@ -66,11 +67,14 @@ class PreprocessArgs:
 
 def preprocess(args: PreprocessArgs):
     """Load the sequence as ns-train does, run (or reuse) every stage, optionally export; returns the tracks."""
+    from idsplat_ns.data.scene import note_empty_sweeps
     from idsplat_ns.data.split import split_frames
     from idsplat_ns.instances.modes import instance_tracks_for_mode
     from idsplat_ns.nerfstudio.builtin_scene import instance_cache_dir
     from idsplat_ns.nerfstudio.dataparser import AutoDataParserConfig
 
+    if args.export is not None:  # before the work, not after it
+        check_writable(args.export, "--export", folder=False)
     config = AutoDataParserConfig(
         data=args.data, segment=args.segment, context_name=args.context_name, protocol=args.protocol,
         cameras=args.cameras, start_frame=args.start_frame, end_frame=args.end_frame,
@@ -80,6 +84,7 @@ def preprocess(args: PreprocessArgs):
     ).resolved()
     scene = config.load_scene()
     print(scene.summary())
+    note_empty_sweeps(scene)
     train_idx, _ = split_frames(scene.num_frames, config.train_fraction, config.eval_every)
     train_frames = set(scene.frame_indices[train_idx].tolist())
     cache_dir = instance_cache_dir(scene.name)

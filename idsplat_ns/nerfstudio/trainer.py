@@ -2,8 +2,11 @@
 
 Three changes to nerfstudio's behaviour, each needed for ``kill -9`` then the same command again:
 
-- A checkpoint is written under a temporary name and renamed, so a kill during ``torch.save``
-  never leaves a truncated ``step-*.ckpt`` that the resume (or ``ns-eval``) would then load.
+- A checkpoint is written under a temporary name, read back in full and renamed, and the previous
+  one is kept beside it (:mod:`idsplat_ns.runs.checkpoints`): a kill during ``torch.save`` never
+  leaves a truncated ``step-*.ckpt``, and a newest file damaged later still leaves one to resume
+  from. A resume takes the newest checkpoint that loads, moves newer ones that do not to
+  ``damaged_checkpoints/`` and says so in one line.
 - A run folder that already holds checkpoints resumes from the latest one (``--load-config
   RUN/config.yml`` re-runs the same folder; so does a fixed ``--timestamp``), and
   ``--max-num-iterations`` stays the run's total: a run killed at step 700 of 1500 trains 800
@@ -27,55 +30,37 @@ from nerfstudio.utils.rich_utils import CONSOLE
 
 from idsplat_ns.atomic import TMP_MARK, atomic_path
 from idsplat_ns.nerfstudio.random_state import capture_random_state, restore_random_state
-
-CHECKPOINT_GLOB = "step-*.ckpt"
-
-
-def checkpoint_step(path: Path) -> int:
-    """The step in a checkpoint's name ``step-000001234.ckpt``."""
-    return int(path.name[len("step-"):-len(".ckpt")])
-
-
-def latest_checkpoint(folder: Path) -> Optional[Path]:
-    """The checkpoint with the highest step in ``folder`` (None when there is none)."""
-    found = [p for p in Path(folder).glob(CHECKPOINT_GLOB) if TMP_MARK not in p.name] if Path(folder).is_dir() else []
-    return max(found, key=checkpoint_step) if found else None
-
-
-def remove_partial_checkpoints(folder: Path) -> None:
-    """Delete temporaries a killed save left behind (nerfstudio's own loaders would misread them)."""
-    if Path(folder).is_dir():
-        for leftover in Path(folder).glob(f"*{TMP_MARK}*"):
-            leftover.unlink(missing_ok=True)
+from idsplat_ns.runs.checkpoints import LoadedCheckpoint, keep_newest, load_checkpoint, load_latest, set_aside, verify_written
 
 
 class IDSplatTrainer(Trainer):
     """nerfstudio's Trainer with atomic checkpoints and resume (see the module docstring)."""
 
-    def _checkpoint_to_resume(self) -> Optional[Path]:
+    def _checkpoint_to_resume(self) -> Optional[LoadedCheckpoint]:
+        """The checkpoint the options name, else the run's newest that loads (None: a new run)."""
         if self.config.load_checkpoint is not None:
-            return Path(self.config.load_checkpoint)
-        if self.config.load_dir is not None:
-            folder = Path(self.config.load_dir)
-            if self.config.load_step is not None:
-                return folder / f"step-{self.config.load_step:09d}.ckpt"
-            return latest_checkpoint(folder)
-        return latest_checkpoint(self.checkpoint_dir)
+            return load_checkpoint(Path(self.config.load_checkpoint))
+        if self.config.load_dir is not None and self.config.load_step is not None:
+            return load_checkpoint(Path(self.config.load_dir) / f"step-{self.config.load_step:09d}.ckpt")
+        folder = Path(self.config.load_dir) if self.config.load_dir is not None else self.checkpoint_dir
+        if self.config.load_dir is None and not any(folder.glob("step-*.ckpt")):
+            return None
+        loaded = load_latest(folder)
+        if loaded.skipped:
+            moved = set_aside(loaded.skipped)
+            CONSOLE.print(f"{'; '.join(loaded.reasons)}: resuming from {loaded.path.name} instead "
+                          f"(moved to {moved[0].parent})", soft_wrap=True)  # one line, whatever the width
+        return loaded
 
     def _load_checkpoint(self) -> None:
-        remove_partial_checkpoints(self.checkpoint_dir)
-        path = self._checkpoint_to_resume()
-        if path is None:
+        if self.checkpoint_dir.is_dir():  # temporaries of a killed save (nerfstudio's loaders would misread them)
+            for leftover in self.checkpoint_dir.glob(f"*{TMP_MARK}*"):
+                leftover.unlink(missing_ok=True)
+        loaded = self._checkpoint_to_resume()
+        if loaded is None:
             CONSOLE.print("No checkpoint to resume from: training from step 0.")
             return
-        from idsplat_ns.errors import IDSplatError
-
-        if not path.is_file():
-            raise IDSplatError(f"{path}: no such checkpoint; check --load-dir/--load-step/--load-checkpoint")
-        try:
-            state = torch.load(path, map_location="cpu", weights_only=False)
-        except Exception as err:  # noqa: BLE001 - any unpickling failure means the same: a bad file
-            raise IDSplatError(f"{path}: unreadable checkpoint ({type(err).__name__}); delete it to resume from an earlier one") from None
+        path, state = loaded.path, loaded.state
         step = int(state["step"])
         self._start_step = step + 1
         self.step = step  # where the loop goes on (and what a finished run reports)
@@ -91,7 +76,7 @@ class IDSplatTrainer(Trainer):
         self.config.max_num_iterations = max(total - self._start_step, 0)
         CONSOLE.print(
             f"Resuming from {path} (step {step}): {self.config.max_num_iterations} of {total} steps left. "
-            "Delete the run folder to start over."
+            "Delete the run folder to start over.", soft_wrap=True
         )
 
     def train(self) -> None:
@@ -123,7 +108,6 @@ class IDSplatTrainer(Trainer):
             )
             with open(tmp, "rb") as fh:
                 os.fsync(fh.fileno())  # on disk before the rename makes it the checkpoint
+            verify_written(tmp)  # a failure removes the temporary: the previous checkpoints stay
         if self.config.save_only_latest_checkpoint:
-            for old in self.checkpoint_dir.glob(CHECKPOINT_GLOB):
-                if old != path:
-                    old.unlink(missing_ok=True)
+            keep_newest(self.checkpoint_dir)  # the newest and the one before it (module docstring)

@@ -16,6 +16,7 @@ from typing import Type
 
 from nerfstudio.engine.trainer import TrainerConfig
 
+from idsplat_ns.atomic import first_created
 from idsplat_ns.errors import register_run_dir
 from idsplat_ns.nerfstudio.config_defaults import FillsMissingFieldsOnLoad
 from idsplat_ns.nerfstudio.settings_checks import check_camera_backend, check_lidar_compositor, validate_settings
@@ -33,10 +34,12 @@ class IDSplatTrainerConfig(FillsMissingFieldsOnLoad, TrainerConfig):
         check_camera_backend(self.pipeline.model.camera_backend, self.machine.device_type)
         check_lidar_compositor(self.pipeline.model.lidar.compositor, self.machine.device_type)
         base_dir = self.get_base_dir()
-        created = not base_dir.exists()  # an existing folder (a fixed --timestamp) is not ours to remove
+        # An existing folder (a fixed --timestamp) is not ours to remove; otherwise everything
+        # save_config makes, --output-dir included when it did not exist, goes if the run fails.
+        created = None if base_dir.exists() else first_created(base_dir)
         super().save_config()
-        if created:
-            register_run_dir(base_dir, self.output_dir)
+        if created is not None:
+            register_run_dir(base_dir, created)
 
 
 def _trainer_class() -> type:

@@ -56,8 +56,6 @@ def read_config(config_path: str | Path):
     """The TrainerConfig of a run's config.yml; one line naming the file when it cannot be read."""
     import yaml
 
-    import method_configs.idsplat  # noqa: F401  (registers the classes the YAML names)
-
     path = Path(str(config_path).strip()).expanduser()
     if not str(config_path).strip() or not path.is_file():
         raise IDSplatError(f"Save edits: Run config {str(config_path)!r} is not a file; give the config.yml of the run in the viewer")
@@ -77,7 +75,7 @@ def save_hidden_as_run(config_path: str | Path, pipeline_state: Dict[str, Tensor
     from idsplat_ns.model.editing import EditError, SceneTensors
     from idsplat_ns.nerfstudio.edit_cli import apply_edits
     from idsplat_ns.nerfstudio.run_files import SCENE_PREFIX, TrainedRun, write_run
-    from idsplat_ns.nerfstudio.trainer import latest_checkpoint
+    from idsplat_ns.runs.checkpoints import latest_complete
 
     removed = sorted(int(i) for i in hidden if int(i) != STATIC_ID)
     if not removed:
@@ -94,7 +92,7 @@ def save_hidden_as_run(config_path: str | Path, pipeline_state: Dict[str, Tensor
                               frame="instance")
     done = apply_edits(scene, args)
     state = scene.to_state_dict(pipeline_state, SCENE_PREFIX)
-    checkpoint = latest_checkpoint(Path(config.get_checkpoint_dir()))
+    checkpoint = latest_complete(Path(config.get_checkpoint_dir()))
     # write_run records the run's checkpoint; the note says what was saved: the live model.
     run = TrainedRun(config_path, config, checkpoint or config_path, {"step": int(step), "pipeline": state})
     note = {"source_checkpoint": None if checkpoint is None else str(checkpoint.resolve()),
