@@ -21,7 +21,7 @@ from dataclasses import replace
 
 from idsplat_ns.eval.tracking import aggregate
 from idsplat_ns.eval.trajectory_eval import flatten_metrics, tracking_summary
-from idsplat_ns.instances.lidar_motion import LidarMotionConfig
+from idsplat_ns.instances.motion_tracks import LidarMotionConfig
 from idsplat_ns.instances.masks.config import MaskConfig
 from idsplat_ns.instances.masks.perturb import MaskNoiseConfig
 from idsplat_ns.instances.modes import instance_tracks_for_mode

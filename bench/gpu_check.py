@@ -252,13 +252,13 @@ def stage_training_step(garden: Path, device: str, n: int, w: int, h: int, steps
 
     import idsplat_ns.render.camera as camera_module
 
-    available = camera_module._gsplat_available
+    available = camera_module.gsplat_available
     if not backend_auto:  # keep render_camera's "auto" on the torch tile rasterizer
-        camera_module._gsplat_available = lambda: False
+        camera_module.gsplat_available = lambda: False
     try:
         t = timed(step, device, steps)
     finally:
-        camera_module._gsplat_available = available
+        camera_module.gsplat_available = available
     return {"gaussians": n, "size": f"{w}x{h}", "lidar_rays": 16384, "camera_backend": "auto" if backend_auto else "torch",
             **t, "paper_30k_steps_h": t["median_s"] * 30_000 / 3600}
 

@@ -99,7 +99,8 @@ def test_lidar_error_plot_is_written_and_refuses_no_rays(tmp_path):
 def test_sweep_range_errors_take_the_depth_metric_rays():
     import torch
 
-    from idsplat_ns.model.lidar_supervision import SweepRender, sweep_range_errors
+    from idsplat_ns.eval.lidar_evaluation import sweep_range_errors
+    from idsplat_ns.model.lidar_supervision import SweepRender
 
     class Rays:  # the fields of LidarRayBatch that the errors read
         returned = torch.tensor([True, True, False, True])

@@ -10,7 +10,7 @@ import pytest
 
 from idsplat_ns.data.lidar import LidarSweep
 from idsplat_ns.instances.free_space import EvidenceSweeps, motion_compensated_scores, score_clusters
-from idsplat_ns.instances.lidar_motion import LidarMotionConfig, MotionCluster, MotionTrack
+from idsplat_ns.instances.motion_tracks import LidarMotionConfig, MotionCluster, MotionTrack
 
 TIMES = np.arange(0.0, 3.01, 0.25)
 

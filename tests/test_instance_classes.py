@@ -9,7 +9,8 @@ import pandas as pd
 import pytest
 
 from idsplat_ns.data.tracks import class_from_size_speed, label_group
-from idsplat_ns.instances.lidar_motion import LidarMotionConfig, LidarMotionMaskSource, MotionCluster, MotionTrack
+from idsplat_ns.instances.masks.lidar_motion import LidarMotionMaskSource
+from idsplat_ns.instances.motion_tracks import LidarMotionConfig, MotionCluster, MotionTrack
 from idsplat_ns.instances.masks.base import PROMPT_CLASSES
 from idsplat_ns.instances.tracks import InstanceTrack
 from idsplat_ns.model.instance_summary import guess_class

@@ -14,16 +14,8 @@ import pytest
 from idsplat_ns.data.lidar import LidarSweep
 from idsplat_ns.data.tracks import class_from_size_speed
 from idsplat_ns.instances.free_space import _SweepRays
-from idsplat_ns.instances.lidar_motion import (
-    LidarMotionConfig,
-    fits_footprint,
-    ground_heights,
-    merge_parts,
-    MotionCluster,
-    MotionTrack,
-    moving_tracks,
-    object_points,
-)
+from idsplat_ns.instances.lidar_motion import fits_footprint, ground_heights, merge_parts, moving_tracks, object_points
+from idsplat_ns.instances.motion_tracks import LidarMotionConfig, MotionCluster, MotionTrack
 
 
 def _sweep(points: np.ndarray, origin=(0.0, 0.0, 0.0), returned=None) -> LidarSweep:
@@ -257,7 +249,7 @@ def test_tracks_are_lifted_from_their_own_points_with_the_pixel_each_lands_on(st
     """Direct lifting: every observation point is one of its track's cluster points at that
     frame, painted with an image of the frame it projects into; nothing is lost to the masks'
     hulls, erosion or the largest-cluster rule, so it keeps at least what painting keeps."""
-    from idsplat_ns.instances.lidar_motion import LidarMotionMaskSource
+    from idsplat_ns.instances.masks.lidar_motion import LidarMotionMaskSource
     from idsplat_ns.instances.lidar_motion_lifting import lift_track_points
     from idsplat_ns.instances.lifting import LiftingConfig, lift_instances
 

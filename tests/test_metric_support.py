@@ -12,7 +12,8 @@ import pytest
 
 from idsplat_ns.data.lidar import LidarSweep
 from idsplat_ns.model.lidar_render import sample_rays
-from idsplat_ns.model.lidar_supervision import RAYDROP_NOTE, SweepRender, has_drop_labels, held_out_lidar_metrics
+from idsplat_ns.eval.lidar_evaluation import RAYDROP_NOTE, has_drop_labels, held_out_lidar_metrics
+from idsplat_ns.model.lidar_supervision import SweepRender
 
 WAYMO_FRAME = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "waymo" / "pvps_data_one_frame.tfrecord"
 

@@ -13,15 +13,12 @@ with each cluster's velocity from its track.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 from scipy.spatial import cKDTree
 
 from idsplat_ns.data.lidar import LidarSweep
+from idsplat_ns.instances.motion_tracks import LidarMotionConfig, MotionCluster, MotionTrack
 
-if TYPE_CHECKING:  # the clusters and tracks of lidar_motion.py, which imports this module
-    from idsplat_ns.instances.lidar_motion import LidarMotionConfig, MotionCluster, MotionTrack
 
 
 class _SweepRays:

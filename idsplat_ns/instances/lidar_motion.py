@@ -22,14 +22,14 @@ users with no Grounded-SAM-2 files or no GPU).
    folder format for the model; the tracks' own points are written beside them and become the
    lifted observations (lidar_motion_lifting.py), so that registration and smoothing take them
    unchanged.
+
+The settings and the cluster and track types are in motion_tracks.py; the mask source that
+writes step 5 is masks/lidar_motion.py.
 """
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
-from pathlib import Path
 
-import cv2
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
@@ -37,191 +37,9 @@ from tqdm import tqdm
 
 from idsplat_ns.data.lidar import LidarSweep
 from idsplat_ns.data.scene import Scene
-from idsplat_ns.data.tracks import class_from_size_speed
 from idsplat_ns.errors import IDSplatError
 from idsplat_ns.instances.free_space import EvidenceSweeps, motion_compensated_scores, score_clusters
-from idsplat_ns.instances.lidar_motion_lifting import save_track_points
-from idsplat_ns.instances.masks.base import InstanceMaskSet, MaskSource, mask_filename, write_instance_map, write_labels
-
-
-@dataclass(frozen=True)
-class LidarMotionConfig:
-    """Settings of the lidar-motion instance source."""
-
-    max_range: float = 80.0
-    """Metres from the sensor: farther points are ignored (too sparse to cluster); the range
-    instance lifting uses, so that a vehicle is found wherever it can be lifted."""
-    ground_cell: float = 0.5
-    """Metres: side of the ground height cells."""
-    ground_rank: int = 2
-    """A cell's ground height is its ``ground_rank``-th lowest point (the lowest are noise)."""
-    min_height: float = 0.3
-    """Metres above the ground a point must be to belong to an object."""
-    max_height: float = 4.0
-    """Metres above the ground above which points are ignored (tree tops, bridges)."""
-    cluster_eps: float = 0.7
-    """DBSCAN neighbourhood radius, metres."""
-    cluster_min_samples: int = 5
-    """DBSCAN core-point neighbour count."""
-    min_points: int = 15
-    """Clusters with fewer points are dropped."""
-    max_extent: float = 22.0
-    """Metres: clusters longer than this on the ground are structure, not a road user (a
-    semi-truck is 16.5-20 m long; the built-in street's, 16.5 m, seen whole beside the ego, was
-    dropped at 14 m)."""
-    min_footprint: float = 0.4
-    """Metres: clusters narrower than this on the ground in every direction are poles and posts
-    (too thin for the free-space test: rays of other sweeps pass beside them)."""
-    max_direction_error: float = 0.006
-    """Radians: a ray of another sweep tests a point only when its direction is this close."""
-    free_margin: float = 0.4
-    """Metres: a ray ending farther than the point by this passed through it (free space)."""
-    evidence_offsets_s: tuple[float, ...] = (-1.0, -0.5, 0.5, 1.0)
-    """Seconds: sweeps at these offsets (the nearest to each) give free-space evidence."""
-    min_evidence: int = 8
-    """Points with evidence needed for a cluster's motion score to count."""
-    compensate_own_motion: bool = True
-    """Ours: decide motion by the free-space evidence of only the points that the object's own
-    footprint, moved by its track's velocity, leaves at the evidence sweeps' times. A bus moving
-    along its length still covers most of its old points half a second later (occupied evidence
-    of a moving object): its plain score was 0.55, below ``moving_score``, and it was never an
-    instance."""
-    compensate_min_seconds: float = 1.0
-    """Seconds a track must span for its velocity, and so its compensated score, to be trusted:
-    static structure passed by the ego drifts in centroid (other faces come into view) for a few
-    sweeps; compensated by that drift, its edge points read free."""
-    self_cover_radius: float = 0.5
-    """Metres: a point lies in the object's moved footprint when one of its own points, moved,
-    is this close on the ground."""
-    moving_score: float = 0.6
-    """A track whose median motion score exceeds this is moving."""
-    min_displacement: float = 1.5
-    """Metres: a moving track's centroid must travel at least this far over its life."""
-    merge_distance: float = 1.5
-    """Metres: moving tracks whose clusters come this close in every shared sweep, at similar
-    velocity, are parts of one object (a car seen in two pieces around an occluder) and merge."""
-    merge_speed_difference: float = 3.0
-    """m/s: largest difference of two tracks' mean velocities for them to be parts of one object."""
-    merge_footprint: tuple[float, float] = (5.0, 2.5)
-    """Metres (length, width): moving tracks whose clusters, in every shared sweep, together fit a
-    box of this size on the ground (its length along their motion), at similar velocity, are parts of
-    one vehicle too (a car followed from behind shows its rear face and its roof, split where the
-    rear window returns nothing, often more than ``merge_distance`` apart)."""
-    association_gate: float = 2.5
-    """Metres: largest centroid distance to a track's prediction for an association."""
-    max_missed_frames: int = 3
-    """A track not associated for this many sweeps ends."""
-    min_track_frames: int = 3
-    """Moving tracks seen in fewer sweeps are dropped."""
-    mask_dilation_px: int = 3
-    """Pixels by which the projected hull is grown (lidar points sit inside the silhouette)."""
-    lift_own_points: bool = True
-    """Lift each track's own cluster points as its observations (lidar_motion_lifting.py, ours)
-    instead of painting the lidar through its masks, where overlapping hulls hand a partly hidden
-    car's points to the object in front of it."""
-    long_vehicle_height: float = 2.2
-    """Metres: a vehicle track whose clusters' median height extent exceeds this is labelled
-    ``bus`` (buses and lorries seen end-on show a car-sized face; the label gives the amodal-centre
-    stage a long-vehicle length, else the centre sits metres inside the rear)."""
-
-
-@dataclass
-class MotionCluster:
-    """One cluster of one sweep."""
-
-    frame: int
-    """Index into the scene's sweeps."""
-    points: np.ndarray
-    """[N, 3] world points."""
-    times: np.ndarray
-    """[N] seconds, when each point's ray was fired."""
-    score: float = float("nan")
-    """Share of free-space evidence (NaN: too little evidence)."""
-    moved_score: float = float("nan")
-    """The same over only the points that the object itself does not cover at the evidence sweeps'
-    times, moved by its track's velocity (free_space.motion_compensated_scores; NaN: too little)."""
-
-    @property
-    def centroid(self) -> np.ndarray:  # -> [3]
-        return self.points.mean(0)
-
-
-@dataclass
-class MotionTrack:
-    """Clusters associated over sweeps."""
-
-    track_id: int
-    clusters: list[MotionCluster] = field(default_factory=list)
-    velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    """[3] m/s, from the last associations."""
-
-    def median_score(self) -> float:
-        scores = [c.score for c in self.clusters if np.isfinite(c.score)]
-        return float(np.median(scores)) if scores else float("nan")
-
-    def motion_score(self) -> float:
-        """The median motion-compensated score where clusters have one, else :meth:`median_score`."""
-        scores = [c.moved_score for c in self.clusters if np.isfinite(c.moved_score)]
-        return float(np.median(scores)) if scores else self.median_score()
-
-    def duration(self) -> float:
-        """Seconds from the first cluster's mean ray time to the last's."""
-        return float(np.mean(self.clusters[-1].times) - np.mean(self.clusters[0].times)) if self.clusters else 0.0
-
-    def displacement(self) -> float:
-        """Metres between the first and the last centroid on the ground."""
-        return float(np.linalg.norm(self.clusters[-1].centroid[:2] - self.clusters[0].centroid[:2]))
-
-    def mean_speed(self) -> float:
-        """m/s of the centroid from its first to its last cluster (NaN for a single time)."""
-        span = self.duration()
-        return self.displacement() / span if span > 0 else float("nan")
-
-    def mean_velocity(self) -> np.ndarray:  # -> [3] m/s
-        """Centroid velocity from the first to the last cluster (the last association's velocity
-        for a single time)."""
-        span = self.duration()
-        if span <= 0:
-            return self.velocity
-        return (self.clusters[-1].centroid - self.clusters[0].centroid) / span
-
-    def footprint(self) -> tuple[float, float]:
-        """(length, width) metres on the ground along the principal axes of the cluster that holds
-        the most points, grown to the 80th percentile of the lengths over the track's clusters
-        (one view often shows a single face of the object)."""
-        extents = []  # (points, [2] extent along the major and minor axis)
-        for c in self.clusters:
-            xy = c.points[:, :2] - c.points[:, :2].mean(0)
-            if len(xy) < 3:
-                continue
-            _, _, axes = np.linalg.svd(xy, full_matrices=False)
-            extents.append((len(xy), np.ptp(xy @ axes.T, axis=0)))
-        if not extents:
-            return float("nan"), float("nan")
-        best = max(extents, key=lambda e: e[0])[1]
-        length = max(float(best[0]), float(np.percentile([e[1][0] for e in extents], 80)))
-        return length, float(best[1])
-
-    def height(self) -> float:
-        """Metres: median over the clusters of their vertical extent (NaN without clusters)."""
-        return float(np.median([np.ptp(c.points[:, 2]) for c in self.clusters])) if self.clusters else float("nan")
-
-    def label(self, long_vehicle_height: float = LidarMotionConfig.long_vehicle_height) -> str:
-        """A class guess from the footprint, the height and the speed (the source has no detector
-        label): ``pedestrian``, ``cyclist``, ``car``, (longer than 6.5 m) ``truck`` or (shorter
-        but taller than ``long_vehicle_height``: a long vehicle seen end-on) ``bus``. People are
-        never that tall: a person-sized footprint that is, is the end of a bus seen from afar (its
-        front or back face, a bus length from the middle that the amodal centre gives a vehicle)."""
-        length, width = self.footprint()
-        cls = class_from_size_speed(length, width, self.mean_speed())
-        if cls == "other":
-            return "object"
-        tall = self.height() > long_vehicle_height
-        if cls != "vehicle" and not tall:  # a tall person-sized footprint goes on as a vehicle's end
-            return cls
-        if length > 6.5:
-            return "truck"
-        return "bus" if tall else "car"
+from idsplat_ns.instances.motion_tracks import LidarMotionConfig, MotionCluster, MotionTrack
 
 
 def ground_heights(sweeps: list[LidarSweep], cell: float, rank: int) -> tuple[np.ndarray, np.ndarray]:
@@ -395,64 +213,3 @@ def merge_parts(tracks: list[MotionTrack], config: LidarMotionConfig) -> list[Mo
 def _max_finite(values: list[float]) -> float:
     finite = [v for v in values if np.isfinite(v)]
     return max(finite) if finite else float("nan")
-
-
-def render_track_masks(scene: Scene, tracks: list[MotionTrack], config: LidarMotionConfig, out_dir: Path,
-                       progress: bool = False) -> None:
-    """Write one instance map per image: each track's points at the image time, hull-filled."""
-    sweep_frames = [s.frame_index for s in motion_sweeps(scene)]
-    by_frame: dict[int, list[tuple[MotionTrack, MotionCluster]]] = {}
-    for tr in tracks:
-        for c in tr.clusters:
-            by_frame.setdefault(sweep_frames[c.frame], []).append((tr, c))
-    kernel = np.ones((2 * config.mask_dilation_px + 1,) * 2, np.uint8) if config.mask_dilation_px > 0 else None
-    for image in tqdm(scene.images, desc="lidar motion: masks", unit="image", disable=not progress):
-        K = image.intrinsics
-        ids = np.zeros((K.height, K.width), np.uint16)
-        items = []
-        for tr, c in by_frame.get(image.frame_index, []):
-            pts = c.points + tr.velocity[None] * (image.time - c.times)[:, None]  # to the image time
-            proj = image.project(pts)
-            if proj.valid.sum() >= 3:
-                items.append((float(np.median(proj.depth[proj.valid])), tr.track_id, proj.uv[proj.valid]))
-        for _, track_id, uv in sorted(items, key=lambda x: -x[0]):  # far to near: near objects win
-            hull = cv2.convexHull(np.round(uv).astype(np.int32))
-            layer = np.zeros_like(ids, np.uint8)
-            cv2.fillConvexPoly(layer, hull, 1)
-            if kernel is not None:
-                layer = cv2.dilate(layer, kernel)
-            ids[layer > 0] = track_id
-        write_instance_map(out_dir / mask_filename(image.camera, image.frame_index), ids)
-
-
-def _finite_or_none(value: float):
-    """JSON has no NaN: None where a value is unknown."""
-    return round(float(value), 3) if np.isfinite(value) else None
-
-
-class LidarMotionMaskSource(MaskSource):
-    """Instance masks from moving lidar clusters (no model files, no annotations)."""
-
-    name = "lidar-motion"
-
-    def __init__(self, config: LidarMotionConfig):
-        self.config = config
-
-    def cache_key(self) -> dict:
-        # labels: the version of the class-guess rule (cached instances.json files carry its
-        # labels; 3: tall vehicles seen end-on are buses; 4: so are tall person-sized footprints).
-        return {"kind": self.name, "labels": 4, **asdict(self.config)}
-
-    def generate(self, scene: Scene, out_dir: Path, progress: bool = True) -> InstanceMaskSet:
-        out_dir = Path(out_dir)
-        out_dir.mkdir(parents=True, exist_ok=True)
-        tracks = moving_tracks(scene, self.config, progress)
-        render_track_masks(scene, tracks, self.config, out_dir, progress)
-        save_track_points(out_dir, tracks, [s.frame_index for s in motion_sweeps(scene)])
-        labels = {tr.track_id: tr.label(self.config.long_vehicle_height) for tr in tracks}
-        write_labels(out_dir, labels, {tr.track_id: {"frames": len(tr.clusters), "motion_score": tr.median_score(),
-                                                      "speed": _finite_or_none(tr.mean_speed()),
-                                                      "footprint": [_finite_or_none(v) for v in tr.footprint()]}
-                                 for tr in tracks})
-        return InstanceMaskSet(out_dir, labels, self.name)
-

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 from collections import defaultdict
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 from tqdm import tqdm
@@ -21,34 +20,14 @@ from tqdm import tqdm
 from idsplat_ns.data.rolling_shutter import camera_paths, project_rolling
 from idsplat_ns.data.scene import Scene
 from idsplat_ns.errors import IDSplatError
-from idsplat_ns.instances.cache import load_npz, save_npz
+from idsplat_ns.instances.cache import load_npz
 from idsplat_ns.instances.lifting import InstanceObservation, LiftedInstances, LiftingConfig, pixels_inside
-
-if TYPE_CHECKING:  # lidar_motion imports this module to write the file
-    from idsplat_ns.instances.lidar_motion import MotionTrack
-
-TRACK_POINTS = "track_points.npz"
-"""File in a lidar-motion mask folder with each track's cluster points per sweep."""
-
-
-def save_track_points(out_dir: Path, tracks: list[MotionTrack], sweep_frame_indices: list[int]) -> None:
-    """Write the clusters of ``tracks`` to ``out_dir/TRACK_POINTS``;
-    ``sweep_frame_indices[k]`` is the dataset frame index of the k-th sweep the clusters count."""
-    arrays, index = {}, {}
-    for tr in tracks:
-        frames = []
-        for c in tr.clusters:
-            f = int(sweep_frame_indices[c.frame])
-            arrays[f"{tr.track_id}_{f}_points"] = c.points
-            arrays[f"{tr.track_id}_{f}_times"] = c.times
-            frames.append(f)
-        index[str(tr.track_id)] = frames
-    save_npz(Path(out_dir) / TRACK_POINTS, arrays, index)
+from idsplat_ns.instances.masks.lidar_motion import TRACK_POINTS
 
 
 def lift_track_points(scene: Scene, mask_dir: Path, labels: dict[int, str], config: LiftingConfig,
                       progress: bool = True) -> LiftedInstances:
-    """:class:`LiftedInstances` of the tracks stored in ``mask_dir`` by :func:`save_track_points`."""
+    """:class:`LiftedInstances` of the tracks stored in ``mask_dir`` by :func:`~idsplat_ns.instances.masks.lidar_motion.save_track_points`."""
     path = Path(mask_dir) / TRACK_POINTS
     if not path.is_file():
         raise IDSplatError(f"{path}: missing; delete {mask_dir} so that the lidar-motion masks are made again")

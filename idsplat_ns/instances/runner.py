@@ -25,7 +25,7 @@ from idsplat_ns.instances.smoothing import SmoothingConfig, smooth_trajectory
 from idsplat_ns.instances.smoothing.observability import translation_covariances
 from idsplat_ns.instances.smoothing.smoother import SmoothedTrajectory
 from idsplat_ns.instances.features.config import FeatureConfig, make_feature_extractor, resolve_feature_kind
-from idsplat_ns.instances.lidar_motion import LidarMotionMaskSource
+from idsplat_ns.instances.masks.lidar_motion import LidarMotionMaskSource
 from idsplat_ns.instances.lidar_motion_lifting import lift_track_points
 from idsplat_ns.instances.lifting import LiftedInstances, LiftingConfig, lift_instances
 from idsplat_ns.instances.masks.base import InstanceMaskSet

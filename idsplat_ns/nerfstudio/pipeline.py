@@ -76,7 +76,7 @@ class IDSplatPipeline(VanillaPipeline):
         """Table-2 lidar metrics averaged over the held-out sweeps, and a note on what the data
         cannot measure (the ray-drop accuracy without drop labels). Appends each sweep's
         (measured range, absolute error) to ``range_errors`` for the plot."""
-        from idsplat_ns.model.lidar_supervision import held_out_lidar_metrics, sweep_range_errors
+        from idsplat_ns.eval.lidar_evaluation import held_out_lidar_metrics, sweep_range_errors
 
         sweeps = self._held_out_sweeps()
         if not sweeps:

@@ -49,9 +49,9 @@ def check_camera_backend(backend: str, device_type: str) -> None:
     """Refuse a camera backend the training device cannot run (``--machine.device-type``)."""
     if backend != "gsplat":
         return
-    from idsplat_ns.render.camera import _gsplat_available  # the test rasterize_camera's auto makes; imports torch
+    from idsplat_ns.render.gsplat_backend import gsplat_available  # the test rasterize_camera's auto makes; imports torch
 
-    if device_type != "cuda" or not _gsplat_available():
+    if device_type != "cuda" or not gsplat_available():
         raise IDSplatError(f"--pipeline.model.camera-backend gsplat needs a CUDA device and the gsplat package "
                            f"(training on {device_type}); use auto or torch")  # fmt: skip
 

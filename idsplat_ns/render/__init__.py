@@ -32,7 +32,8 @@ See ``docs/rendering.md`` for the compositing rules, the speed table and design 
 """
 
 from .lidar import LidarRender, rasterize_lidar
-from .camera import CameraRender, rasterize_camera, rasterize_projected
+from .camera import rasterize_camera, rasterize_projected
+from .camera_render import CameraRender
 from .projection import Projection, covariance_3d, project_gaussians, quat_to_rotmat
 from .reference import rasterize_dense
 from .rolling_shutter import CameraMotion, ShutterTiming

@@ -1,36 +1,20 @@
-"""The camera rasterizer: :func:`rasterize_camera` and its output :class:`CameraRender`."""
+"""The camera rasterizer: :func:`rasterize_camera` (its output: :class:`~idsplat_ns.render.camera_render.CameraRender`)."""
 
 from __future__ import annotations
 
-import importlib.util
-from dataclasses import dataclass
 from typing import Optional
 
 import torch
 from torch import Tensor
 
 from ..errors import IDSplatError
+from .camera_render import CameraRender
 from .compositor import choose_compositor
+from .gsplat_backend import gsplat_available, rasterize_camera_gsplat
 from .projection import Projection, project_gaussians
 from .rolling_shutter import CameraMotion
 from .tile_composite import CompositePlan, TileCoefficients, TileComposite, pixel_basis
 from .tiles import intersect_tiles, tile_centres, tiles_to_image
-
-
-@dataclass
-class CameraRender:
-    """Per-pixel outputs of :func:`rasterize_camera` (no background composited)."""
-
-    features: Tensor  # [C, H, W, D] sum_i w_i f_i
-    alpha: Tensor  # [C, H, W, 1] sum_i w_i
-    depth: Tensor  # [C, H, W, 1] expected depth sum_i w_i d_i / alpha, 0 where alpha == 0
-    median_depth: Tensor  # [C, H, W, 1] depth where transmittance crosses 0.5 (see reference.py)
-    instance_id: Tensor  # [C, H, W] int64 instance of largest weight, -1 where alpha == 0
-    means2d: Tensor  # [C, N, 2] projected means (call .retain_grad() for densification stats)
-    radii: Tensor  # [C, N] int32 pixel radii, 0 = culled
-    depths: Tensor  # [C, N] camera-space depth of every Gaussian
-    instance_alpha: Optional[Tensor] = None  # [C, H, W, K] per-instance alpha (if requested)
-    instance_values: Optional[Tensor] = None  # [K] instance ID of each instance_alpha channel
 
 
 def _check_inputs(means, quats, scales, opacities, features, viewmats, Ks, instance_ids) -> None:
@@ -67,10 +51,6 @@ def _check_motion(motion: CameraMotion, n: int, c: int) -> None:
 
 
 CAMERA_BACKENDS = ("auto", "torch", "gsplat")
-
-
-def _gsplat_available() -> bool:
-    return importlib.util.find_spec("gsplat") is not None
 
 
 def rasterize_camera(
@@ -119,10 +99,8 @@ def rasterize_camera(
     if backend not in CAMERA_BACKENDS:
         raise IDSplatError(f"rasterize_camera: backend={backend!r}; use 'auto', 'torch' or 'gsplat'")
     if backend == "auto":
-        backend = "gsplat" if means.is_cuda and _gsplat_available() else "torch"
+        backend = "gsplat" if means.is_cuda and gsplat_available() else "torch"
     if backend == "gsplat":
-        from .gsplat_backend import rasterize_camera_gsplat
-
         return rasterize_camera_gsplat(
             means, quats, scales, opacities, features, viewmats, Ks, width, height,
             instance_ids=instance_ids, near_plane=near_plane, far_plane=far_plane,

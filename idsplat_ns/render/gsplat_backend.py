@@ -9,12 +9,20 @@ the torch path still sees (there alpha < 0.011 * opacity); see docs/rendering.md
 
 from __future__ import annotations
 
+import importlib.util
 from typing import Optional
 
 import torch
 from torch import Tensor
 
 from ..errors import IDSplatError
+from .camera_render import CameraRender
+from .rolling_shutter import shifted_world_means
+
+
+def gsplat_available() -> bool:
+    """Whether gsplat is installed (its CUDA kernels are only built, and imported, when used)."""
+    return importlib.util.find_spec("gsplat") is not None
 
 
 def rasterize_camera_gsplat(
@@ -51,7 +59,6 @@ def rasterize_camera_gsplat(
         )
     from gsplat import rasterization  # imported here: gsplat's CUDA build is only needed on GPUs
 
-    from .camera import CameraRender
 
     n, d = features.shape
     columns = [features, torch.ones_like(features[:, :1])]
@@ -86,9 +93,6 @@ def rasterize_camera_gsplat(
 
 def _per_camera_shifted(means, quats, scales, opacities, features, viewmats, Ks, width, height, *, motion, **kwargs):
     """Rolling shutter on gsplat: one call per camera with that camera's shifted means, stacked."""
-    from .camera import CameraRender
-    from .rolling_shutter import shifted_world_means
-
     shifted = shifted_world_means(means, viewmats, Ks, motion, width, height)  # [C, N, 3]
     parts = [rasterize_camera_gsplat(shifted[c], quats, scales, opacities, features, viewmats[c : c + 1], Ks[c : c + 1],
                                      width, height, **kwargs) for c in range(viewmats.shape[0])]

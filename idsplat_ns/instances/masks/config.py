@@ -9,7 +9,7 @@ from idsplat_ns.errors import IDSplatError
 from idsplat_ns.instances.masks.base import MaskSource
 from idsplat_ns.instances.masks.gt_boxes import GtBoxMasksConfig
 from idsplat_ns.instances.masks.grounded_sam2_onnx import GroundedSam2Config
-from idsplat_ns.instances.lidar_motion import LidarMotionConfig
+from idsplat_ns.instances.motion_tracks import LidarMotionConfig
 from idsplat_ns.instances.masks.precomputed import PrecomputedMasksConfig
 from idsplat_ns.instances.options import cli_option
 
@@ -63,7 +63,7 @@ def make_mask_source(kind: str, config: MaskConfig) -> MaskSource:
 
         return GtBoxMaskSource(config.gt_boxes)
     if kind == "lidar-motion":
-        from idsplat_ns.instances.lidar_motion import LidarMotionMaskSource
+        from idsplat_ns.instances.masks.lidar_motion import LidarMotionMaskSource
 
         return LidarMotionMaskSource(config.lidar_motion)
     if kind == "ground-truth":
