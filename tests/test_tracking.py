@@ -93,6 +93,25 @@ def test_hand_checked_sequence() -> None:
     assert r.motp == pytest.approx((0.2 + 0.5 + 0.3 + 0.1 + 0.0) / 5)
     assert r.recall == pytest.approx(5 / 6) and r.precision == pytest.approx(5 / 6)
     assert "| 1 | 4 | 6 | 6 | 4 | 1 | 1 | 1 | 0.50 |" in format_table({1.0: r})
+    # Identities, by hand: whole trajectories matched one to one, 1-a (or 1-c: 2 frames each) and
+    # 2-b (frame 0): IDTP 3 of 6 objects and 6 predictions, IDF1 = 6 / (6 + 3 + 3).
+    assert (r.id_true_positives, r.id_false_positives, r.id_false_negatives) == (3, 3, 3)
+    assert r.idf1 == pytest.approx(0.5)
+    assert r.num_fragmentations == 0  # 1 is tracked in every frame (by a switch), 2 only at its start
+
+
+def test_fragmentations_count_each_interruption_tracked_again() -> None:
+    gt = {f: {1: [float(f), 0, 0]} for f in range(7)}
+    tracked = (0, 1, 3, 5, 6)  # lost in frames 2 and 4, found again each time: 2 fragmentations
+    pred = {f: {"a": [float(f), 0.1, 0]} for f in tracked}
+    r = clear_mot(gt, pred, [1.0])[1.0]
+    assert r.num_fragmentations == 2 and r.num_misses == 2 and r.num_switches == 0
+    assert (r.id_true_positives, r.id_false_positives, r.id_false_negatives) == (5, 0, 2)
+    assert r.idf1 == pytest.approx(10 / 12)
+    # A prediction in a region that does not count takes no part in the identity matching either.
+    pred[6]["z"] = [40.0, 0, 0]
+    assert clear_mot(gt, pred, [1.0], dont_care={6: {"z"}})[1.0].idf1 == pytest.approx(10 / 12)
+    assert clear_mot(gt, pred, [1.0])[1.0].id_false_positives == 1
 
 
 def test_continuity_beats_a_closer_newcomer() -> None:

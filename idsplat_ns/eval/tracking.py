@@ -8,6 +8,12 @@ last matched to another prediction is an ID switch; (3) unmatched objects are mi
 predictions false positives (FP). ``MOTA = 1 - (FN + FP + switches) / objects``; ``MOTP`` is the mean
 distance [m] of matched pairs (switches included). Over several sequences the counts and matched
 distances are summed (a sequence without matches adds nothing to MOTP, unlike motmetrics' OVERALL row).
+
+Beside CLEAR-MOT, from the same accumulator: fragmentations (a ground-truth trajectory tracked,
+then lost, then tracked again, once per interruption) and the identity scores of Ristani et al.
+2016 (motmetrics' global one-to-one matching of whole trajectories: IDTP, IDFP, IDFN and
+``IDF1 = 2 IDTP / (2 IDTP + IDFP + IDFN)``); predictions in regions that do not count are left
+out of the identity matching.
 """
 
 from __future__ import annotations
@@ -41,6 +47,16 @@ class TrackingMetrics:
     num_false_positives: int  # predictions left unmatched
     num_misses: int  # ground-truth objects left unmatched (FN)
     total_distance: float  # summed distance of all matched pairs (switches included) [m]
+    num_fragmentations: int = 0  # interruptions of ground-truth trajectories that are tracked again
+    id_true_positives: int = 0  # IDTP: object appearances matched to their trajectory's one prediction
+    id_false_positives: int = 0  # IDFP
+    id_false_negatives: int = 0  # IDFN
+
+    @property
+    def idf1(self) -> float:
+        """``2 IDTP / (2 IDTP + IDFP + IDFN)`` (NaN with neither objects nor predictions)."""
+        denominator = 2 * self.id_true_positives + self.id_false_positives + self.id_false_negatives
+        return 2 * self.id_true_positives / denominator if denominator else float("nan")
 
     @property
     def num_detections(self) -> int:
@@ -108,6 +124,19 @@ def _counts(acc: motmetrics.MOTAccumulator, dont_care: list[set[int]]) -> dict[s
             "ignored": ignored, "distance": float(ev["D"].to_numpy()[paired].sum())}
 
 
+_MOT_METRICS = motmetrics.metrics.create()
+
+
+def _identity_counts(per_frame: list, ignore: list[set[int]], threshold: float) -> dict[str, int]:
+    """IDTP, IDFP, IDFN (motmetrics) with the ``ignore``d predictions of each frame left out."""
+    kept = []
+    for (oids, hids, dist), skip in zip(per_frame, ignore):
+        cols = [k for k, h in enumerate(hids) if h not in skip]
+        kept.append((oids, [hids[k] for k in cols], dist[:, cols] if dist.size else dist.reshape(len(oids), 0)))
+    row = _MOT_METRICS.compute(_accumulate(kept, threshold), metrics=["idtp", "idfp", "idfn"], name="s").loc["s"]
+    return {k: int(row[k]) for k in ("idtp", "idfp", "idfn")}
+
+
 def _numbered(gt: Track, pred: Track):
     """Frames in order and, per frame, (object numbers, prediction numbers, distances [N, M]), with
     the id -> number maps: motmetrics wants numeric ids and frame numbers (it subtracts them)."""
@@ -170,11 +199,15 @@ def clear_mot(
     n_pred = sum(len(h) for _, h, _ in per_frame)
     out: dict[float, TrackingMetrics] = {}
     for t in thresholds:
-        c = _counts(_accumulate(per_frame, t), ignore)
+        acc = _accumulate(per_frame, t)
+        c = _counts(acc, ignore)
+        frags = int(_MOT_METRICS.compute(acc, metrics=["num_fragmentations"], name="s").loc["s", "num_fragmentations"])
+        ids = _identity_counts(per_frame, ignore, t)
         out[float(t)] = TrackingMetrics(
             threshold=float(t), num_frames=len(frames), num_objects=n_obj, num_predictions=n_pred - c["ignored"],
             num_matches=c["matches"], num_switches=c["switches"], num_false_positives=c["fp"],
-            num_misses=c["misses"], total_distance=c["distance"],
+            num_misses=c["misses"], total_distance=c["distance"], num_fragmentations=frags,
+            id_true_positives=ids["idtp"], id_false_positives=ids["idfp"], id_false_negatives=ids["idfn"],
         )
     return out
 
@@ -196,6 +229,10 @@ def aggregate(per_sequence: Sequence[Mapping[float, TrackingMetrics]]) -> dict[f
             num_false_positives=sum(r.num_false_positives for r in rows),
             num_misses=sum(r.num_misses for r in rows),
             total_distance=sum(r.total_distance for r in rows),
+            num_fragmentations=sum(r.num_fragmentations for r in rows),
+            id_true_positives=sum(r.id_true_positives for r in rows),
+            id_false_positives=sum(r.id_false_positives for r in rows),
+            id_false_negatives=sum(r.id_false_negatives for r in rows),
         )
     return out
 
@@ -210,12 +247,14 @@ def clear_mot_sequences(
 def format_table(results: Mapping[float, TrackingMetrics]) -> str:
     """A markdown table with the paper's columns, one row per threshold."""
     lines = [
-        "| Dist. threshold [m] | Frames | Objects | Predictions | Matches | Switches | FP | FN | MOTA | MOTP | Recall | Precision |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| Dist. threshold [m] | Frames | Objects | Predictions | Matches | Switches | FP | FN | MOTA | MOTP | Recall | Precision "
+        "| Frag. | IDF1 |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for t, r in sorted(results.items()):
         lines.append(
             f"| {t:g} | {r.num_frames} | {r.num_objects} | {r.num_predictions} | {r.num_matches} | {r.num_switches} "
-            f"| {r.num_false_positives} | {r.num_misses} | {r.mota:.2f} | {r.motp:.2f} | {r.recall:.2f} | {r.precision:.2f} |"
+            f"| {r.num_false_positives} | {r.num_misses} | {r.mota:.2f} | {r.motp:.2f} | {r.recall:.2f} | {r.precision:.2f} "
+            f"| {r.num_fragmentations} | {r.idf1:.2f} |"
         )
     return "\n".join(lines)

@@ -217,11 +217,12 @@ def class_tracking_summaries(
 
 
 def flatten_metrics(
-    results: dict[float, TrackingMetrics], thresholds: Sequence[float] = (1.0, 2.0, 5.0), prefix: str = ""
+    results: dict[float, TrackingMetrics], thresholds: Sequence[float] = PAPER_THRESHOLDS, prefix: str = ""
 ) -> dict[str, float]:
-    """Flat ``{"mota@2m": ..., "motp@2m": ..., "objects@2m": ..., ...}`` for logs and JSON (each key
-    preceded by ``prefix``, e.g. ``pedestrian_``); empty where no object counted (a class the data
-    does not show has no metrics, not zeros). MOTP is absent without matches."""
+    """Flat ``{"mota@2m": ..., "motp@2m": ..., "idf1@2m": ..., ...}`` for logs and JSON at each of
+    ``thresholds`` (default: the paper's six; each key preceded by ``prefix``, e.g. ``pedestrian_``);
+    empty where no object counted (a class the data does not show has no metrics, not zeros). MOTP
+    is absent without matches."""
     out: dict[str, float] = {}
     for th in thresholds:
         m = results.get(th)
@@ -239,6 +240,8 @@ def flatten_metrics(
         out[prefix + "false_positives" + tag] = float(m.num_false_positives)
         out[prefix + "misses" + tag] = float(m.num_misses)
         out[prefix + "id_switches" + tag] = float(m.num_switches)
+        out[prefix + "fragmentations" + tag] = float(m.num_fragmentations)
+        out[prefix + "idf1" + tag] = float(m.idf1)
     return out
 
 
