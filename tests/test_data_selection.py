@@ -128,6 +128,11 @@ def test_memory_estimate_counts_frames_and_refuses_what_does_not_fit(segments):
         check_fits(full, full.bytes // 2, "seg")
     with pytest.raises(IDSplatError, match="--lidars LIDAR9: not a Waymo lidar"):
         estimate_segment_memory(seg, None, ["LIDAR9"], True)
+    # The lidars named and counted are those the file holds, not all five: the v2 copy holds the
+    # same five; the real frame (a panoptic-label frame) holds none.
+    assert estimate_segment_memory(v2, context, None, True).lidars == full.lidars
+    bare = estimate_segment_memory(FRAME, None, None, True)
+    assert bare.lidars == () and bare.describe().startswith("1 frames, no lidar")
 
 
 # --- dataparsers as ns-train subcommands ---------------------------------------------------------

@@ -135,3 +135,29 @@ def test_segment_lidar_rays(tmp_path):
     # Sensor origins sit at the TOP lidar's mounting height above the ego origin.
     assert np.median(o[:, 2] - scene.ego_poses[1][2, 3]) == pytest.approx(2.18, abs=0.2)
     assert set(np.unique(sweep.sensor_ids)) == {1, 2}
+
+
+@pytest.mark.skipif(not FRAME.is_file(), reason=f"real Waymo frame not found at {FRAME}")
+@pytest.mark.parametrize("pose_fraction", [0.5, 0.3])
+def test_each_ego_pose_is_stamped_with_its_own_time(tmp_path, pose_fraction):
+    """A segment whose frame poses are the ego at ``pose_fraction`` of the sweep, while the frame
+    timestamps are the sweeps' starts: the pixel poses give each frame pose its time, and the ego
+    pose of a frame is where the ego was at the frame's timestamp (10 m/s: 1 m per 0.1 s)."""
+    from idsplat_ns.data.waymo.range_image import pose_sweep_fraction
+
+    path = write_synthetic_segment(FRAME, tmp_path / "seg.tfrecord", 3, top_width=300, speed=10.0,
+                                   pose_fraction=pose_fraction)
+    scene = load_segment(path, cameras=["FRONT"], lidars=["TOP"])
+    assert scene.metadata["frame_pose_times"] == pytest.approx(scene.frame_times + pose_fraction * 0.1, abs=1e-3)
+    # Recentring puts the first frame pose, the ego at time 0.1 * pose_fraction, at the origin.
+    heading = scene.ego_poses[0][:3, 0]
+    extrinsics = []
+    for k in range(3):
+        expected = heading * 10.0 * (0.1 * k - 0.1 * pose_fraction)
+        assert np.allclose(scene.ego_poses[k][:3, 3], expected, atol=0.005), (k, scene.ego_poses[k][:3, 3], expected)
+        extrinsics.append(np.linalg.inv(scene.ego_poses[k]) @ scene.lidar[k].sensor_to_world)
+    # The lidar's pose of each sweep is the vehicle's at the sweep's time times the TOP extrinsic.
+    assert np.allclose(extrinsics[0], extrinsics[1]) and np.allclose(extrinsics[0], extrinsics[2])
+    # Standing still, or without pixel poses, the frame pose is taken at mid-sweep.
+    assert pose_sweep_fraction(None, np.zeros(3)) == 0.5
+    assert pose_sweep_fraction(np.zeros((2, 8, 6)), np.zeros(3)) == 0.5

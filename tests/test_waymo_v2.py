@@ -110,8 +110,13 @@ def test_real_vehicle_pose_component(v1_and_v2, tmp_path):
     col = real.column("[VehiclePoseComponent].world_from_vehicle.transform").to_pylist()
     by_ts = dict(zip(real.column("key.frame_timestamp_micros").to_pylist(), col))
     raw = np.array([np.asarray(by_ts[t], np.float64).reshape(4, 4) for t in ts[10:15]])
-    assert np.allclose(s.ego_poses[:, :3, :3], raw[:, :3, :3])
-    assert np.allclose(s.ego_poses[:, :3, 3], raw[:, :3, 3] - raw[0, :3, 3])
-    assert np.allclose(s.ego_poses[0][:3, 3], 0.0)
+    # A frame's vehicle pose is about mid-sweep (no lidar loaded: no pixel poses to say more), its
+    # timestamp the sweep's start: the ego pose at frame k's time lies halfway between the frame
+    # poses of k - 1 and k (frames 0.1 s apart), and the first one half a step before its own.
+    assert s.metadata["frame_pose_times"] == pytest.approx(s.frame_times + 0.05)
+    halfway = (raw[:-1, :3, 3] + raw[1:, :3, 3]) / 2 - raw[0, :3, 3]
+    assert np.allclose(s.ego_poses[1:, :3, 3], halfway, atol=0.01)
+    assert np.allclose(s.ego_poses[0, :3, 3], -(raw[1, :3, 3] - raw[0, :3, 3]) / 2, atol=0.01)
+    assert np.allclose(s.ego_poses[:, :3, :3], raw[:, :3, :3], atol=0.01)  # a straight drive: hardly turning
     steps = np.linalg.norm(np.diff(s.ego_poses[:, :3, 3], axis=0), axis=1)
     assert np.all(steps < 3.0)  # <= 30 m/s between 0.1 s frames: a real driving trajectory

@@ -3,7 +3,11 @@ for v1 and v2, so both layouts give the same scene).
 
 Conventions applied here, once: recentring on the first kept frame's vehicle pose (translation
 only), seconds since the first kept frame's timestamp (raw microseconds kept), OpenCV camera axes,
-lidar as world rays with per-pixel origin and time for TOP, intensity ``tanh(raw)`` in [0, 1).
+lidar as world rays with per-pixel origin and time for TOP, intensity ``tanh(raw)`` in [0, 1),
+and each frame's ego pose (and sweep pose) at the frame's time: ``Frame.pose`` is the vehicle about
+mid-sweep, ``timestamp_micros`` the sweep's start, so the frame poses are stamped with their own
+time (:func:`~idsplat_ns.data.waymo.range_image.pose_sweep_fraction`) and interpolated to the frame
+times. The 3D labels stay in the frame pose's coordinates, as Waymo defines them.
 """
 
 from __future__ import annotations
@@ -15,11 +19,18 @@ from typing import Iterable, Optional
 import numpy as np
 
 from idsplat_ns.data.camera import CameraImage
+from idsplat_ns.data.geometry import interpolate_poses
 from idsplat_ns.data.lidar import LidarSweep
 from idsplat_ns.data.scene import Scene, recentring_transform
 from idsplat_ns.data.waymo.calibration import camera_intrinsics, camera_to_world, rolling_shutter
 from idsplat_ns.data.waymo.labels import build_tracks
-from idsplat_ns.data.waymo.range_image import SWEEP_SECONDS, column_fire_fractions, range_image_rays, row_inclinations
+from idsplat_ns.data.waymo.range_image import (
+    SWEEP_SECONDS,
+    column_fire_fractions,
+    pose_sweep_fraction,
+    range_image_rays,
+    row_inclinations,
+)
 from idsplat_ns.data.waymo.records import LASER_NAMES, FrameRecord, LidarFrame, SegmentCalibration
 from idsplat_ns.errors import IDSplatError
 
@@ -98,7 +109,7 @@ def assemble_scene(
     """Build the Scene from the kept frames (consumed one at a time)."""
     images: list[CameraImage] = []
     sweeps: list[LidarSweep] = []
-    frame_indices, frame_times, ego_poses, raw_times = [], [], [], []
+    frame_indices, frame_times, frame_poses, pose_times, raw_times = [], [], [], [], []
     label_frames = []
     world_from_raw = None
     t0 = None
@@ -112,7 +123,10 @@ def assemble_scene(
         frame_indices.append(rec.index)
         frame_times.append(frame_time)
         raw_times.append(rec.timestamp_micros)
-        ego_poses.append(pose_world)
+        frame_poses.append(pose_world)
+        # The frame pose is the vehicle about mid-sweep, not at the sweep's start (timestamp_micros).
+        top_pose = next((lid.pixel_pose for lid in rec.lidars if lid.name == "TOP"), None)
+        pose_times.append(frame_time + pose_sweep_fraction(top_pose, rec.pose[:3, 3]) * SWEEP_SECONDS)
         for cam in rec.cameras:
             cc = calib.cameras[cam.name]
             intr = camera_intrinsics(cc)
@@ -147,8 +161,6 @@ def assemble_scene(
                 )
             )
         parts = [lidar_rays(lid, calib, pose_world, world_from_raw, frame_time) for lid in rec.lidars]
-        top = calib.lidars.get("TOP")
-        sensor_to_world = pose_world @ top.extrinsic if top is not None else pose_world
         if parts:
             cat = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
         else:
@@ -162,7 +174,7 @@ def assemble_scene(
                 frame_index=rec.index,
                 time=frame_time,
                 raw_timestamp=float(rec.timestamp_micros),
-                sensor_to_world=sensor_to_world,
+                sensor_to_world=pose_world,  # the vehicle at the sweep's time: set below
                 origins=cat["origins"],
                 directions=cat["directions"],
                 ranges=cat["ranges"],
@@ -177,8 +189,15 @@ def assemble_scene(
         label_frames.append((rec.index, frame_time, pose_world, rec.labels))
     if world_from_raw is None:
         raise IDSplatError(f"{where}: no frames in the selected range; check the start/end frame options")
+    # Each frame's ego pose at the frame's time (the sweep start), from the frame poses at their own
+    # times (interpolated; extrapolated at the ends with the end segments' velocity).
+    ego_poses = interpolate_poses(np.array(pose_times), np.stack(frame_poses), np.array(frame_times), extrapolate=True)
+    top = calib.lidars.get("TOP")
+    for sweep, ego in zip(sweeps, ego_poses):
+        sweep.sensor_to_world = ego @ top.extrinsic if top is not None else ego
     meta = {"context_name": calib.context_name, "stats": calib.stats, "image_scale": image_scale,
-            "raw_frame_timestamps_micros": np.array(raw_times, dtype=np.int64)}
+            "raw_frame_timestamps_micros": np.array(raw_times, dtype=np.int64),
+            "frame_pose_times": np.array(pose_times, dtype=np.float64)}
     meta.update(metadata or {})
     return Scene(
         name=calib.context_name,
@@ -186,7 +205,7 @@ def assemble_scene(
         root=source_path,
         frame_indices=np.array(frame_indices, dtype=int),
         frame_times=np.array(frame_times, dtype=np.float64),
-        ego_poses=np.stack(ego_poses),
+        ego_poses=ego_poses,
         images=images,
         lidar=sweeps,
         tracks=build_tracks(label_frames),

@@ -34,11 +34,13 @@ def synthetic_range_images(
     vehicle_pose: Optional[np.ndarray] = None,  # [4, 4] vehicle-to-world at mid-sweep, for the TOP pixel pose
     speed: float = 10.0,
     no_return_fraction: float = 0.1,
+    pose_fraction: float = 0.5,
 ) -> tuple[np.ndarray, np.ndarray, Optional[np.ndarray]]:
     """Return 1 [H, W, 4], return 2 [H, W, 4] and (with ``vehicle_pose``) the pixel pose [H, W, 6].
 
     Ranges are smooth along rows (like a real scene) with holes of no return (-1). The pixel pose
-    moves the ego forward along its heading, columns firing left to right over one sweep.
+    moves the ego forward along its heading, columns firing left to right over one sweep;
+    ``vehicle_pose`` is where the ego is at ``pose_fraction`` of the sweep (Waymo: about 0.5).
     """
     cols = np.linspace(0, 2 * np.pi, width, endpoint=False)
     base = 5.0 + 60.0 * (0.5 + 0.5 * np.sin(cols[None, :] * 3 + np.arange(height)[:, None] * 0.05))
@@ -57,21 +59,23 @@ def synthetic_range_images(
         roll, pitch, yaw = pose_to_euler(vehicle_pose[:3, :3])
         frac = (np.arange(width) + 0.5) / width
         heading = vehicle_pose[:3, 0]
-        trans = vehicle_pose[:3, 3][None, :] + heading[None, :] * speed * (frac[:, None] - 0.5) * SWEEP_SECONDS
+        trans = vehicle_pose[:3, 3][None, :] + heading[None, :] * speed * (frac[:, None] - pose_fraction) * SWEEP_SECONDS
         pose = np.zeros((height, width, 6), np.float32)
         pose[..., 0], pose[..., 1], pose[..., 2] = roll, pitch, yaw
         pose[..., 3:6] = trans[None, :, :]
     return r1, r2, pose
 
 
-def add_lidar(frame, rng: np.random.Generator, top_width: int = 2650, side_shape: tuple[int, int] = (200, 600), speed: float = 10.0) -> None:
+def add_lidar(frame, rng: np.random.Generator, top_width: int = 2650, side_shape: tuple[int, int] = (200, 600),
+              speed: float = 10.0, pose_fraction: float = 0.5) -> None:
     """Fill ``frame.lasers`` (all calibrated lidars) with synthetic range images, in place."""
     del frame.lasers[:]
     pose = np.asarray(frame.pose.transform, dtype=np.float64).reshape(4, 4)
     for lc in frame.context.laser_calibrations:
         name = LASER_NAMES[int(lc.name)]
         h, w = (len(lc.beam_inclinations), top_width) if name == "TOP" else side_shape
-        r1, r2, pixel_pose = synthetic_range_images(h, w, rng, pose if name == "TOP" else None, speed=speed)
+        r1, r2, pixel_pose = synthetic_range_images(h, w, rng, pose if name == "TOP" else None, speed=speed,
+                                                    pose_fraction=pose_fraction)
         laser = frame.lasers.add()
         laser.name = int(lc.name)
         laser.ri_return1.range_image_compressed = encode_compressed_matrix(r1, 1)
@@ -88,8 +92,10 @@ def synthetic_frames(
     seed: int = 0,
     top_width: int = 2650,
     side_shape: tuple[int, int] = (200, 600),
+    pose_fraction: float = 0.5,
 ) -> Iterator[bytes]:
-    """Serialized frames: the first record of ``source`` moved forward by ``speed`` m/s per 0.1 s."""
+    """Serialized frames: the first record of ``source`` moved forward by ``speed`` m/s per 0.1 s;
+    each frame's pose is the ego at ``pose_fraction`` of its sweep (per the TOP pixel poses)."""
     (_, data), = list(iter_records(source, 0, 1))
     rng = np.random.default_rng(seed)
     for k in range(num_frames):
@@ -111,7 +117,7 @@ def synthetic_frames(
             im.camera_trigger_time += dt
             im.camera_readout_done_time += dt
         if with_lidar:
-            add_lidar(frame, rng, top_width=top_width, side_shape=side_shape, speed=speed)
+            add_lidar(frame, rng, top_width=top_width, side_shape=side_shape, speed=speed, pose_fraction=pose_fraction)
         yield frame.SerializeToString()
 
 

@@ -82,6 +82,29 @@ def _v2_frames(root: Path, context_name: str, start: int, end: Optional[int]) ->
     return max(0, min(total, end if end is not None else total) - start)
 
 
+def _lidars_in_v1(path: Path, start: int) -> set[str]:
+    from idsplat_ns.data.waymo import proto
+    from idsplat_ns.data.waymo.tfrecord import iter_records
+
+    for _, data in iter_records(path, start, start + 1):
+        frame = proto.Frame()
+        frame.ParseFromString(data)
+        return {LASER_NAMES.get(int(laser.name), "") for laser in frame.lasers}
+    return set()
+
+
+def _lidars_in_v2(root: Path, context_name: str) -> set[str]:
+    import pyarrow.parquet as pq
+
+    from idsplat_ns.data.waymo.v2 import find_component_dir
+
+    table = find_component_dir(root, context_name) / "lidar" / f"{context_name}.parquet"
+    if not table.is_file():
+        return set()
+    names = pq.read_table(table, columns=["key.laser_name"]).column(0).unique().to_pylist()
+    return {LASER_NAMES.get(int(n), "") for n in names}
+
+
 def estimate_segment_memory(
     path: Path,
     context_name: Optional[str],
@@ -98,8 +121,11 @@ def estimate_segment_memory(
     if Path(path).is_dir():
         frames = _v2_frames(Path(path), context_name or "", start, end)
         image_bytes = frames * JPEG_BYTES_PER_FRAME
+        held = _lidars_in_v2(Path(path), context_name or "") if names else set()
     else:
         frames, image_bytes = _v1_frames_and_bytes(Path(path), start, end)  # records hold the JPEGs
+        held = _lidars_in_v1(Path(path), start) if names and frames else set()
+    names = tuple(n for n in names if n in held)  # asked for and in the file
     rays = rays_per_frame(names, second_return)
     return SegmentMemory(frames, names, rays, int(frames * rays * BYTES_PER_RAY + image_bytes))
 

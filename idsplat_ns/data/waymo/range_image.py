@@ -224,6 +224,30 @@ def column_fire_fractions(pixel_pose: Optional[np.ndarray], width: int) -> np.nd
     return (rank + 0.5) / width
 
 
+def pose_sweep_fraction(pixel_pose: Optional[np.ndarray], position: np.ndarray) -> float:
+    """When in the sweep the vehicle was at ``position`` [3] (the frame pose's translation, in the
+    pixel poses' frame), as a fraction of the sweep from its first column: the frame pose's own time.
+
+    Waymo's ``Frame.pose`` is "roughly (but not exactly)" the pose in the middle of the sweep and
+    carries no time of its own, while ``Frame.timestamp_micros`` is the sweep's start. The TOP
+    lidar's per-pixel poses place the vehicle at each column's firing (:func:`column_fire_fractions`):
+    a line fitted to fraction against progress along the heading gives the fraction where the
+    frame pose lies (beyond [0, 1] where it lies outside the sweep). 0.5 without pixel poses or with
+    a standing ego (< 1 cm over the sweep, where its time changes no position).
+    """
+    if pixel_pose is None:
+        return 0.5
+    trans = np.asarray(pixel_pose[..., 3:6], dtype=np.float64).mean(0)  # [W, 3]
+    yaw = np.asarray(pixel_pose[..., 2], dtype=np.float64).mean()
+    heading = np.array([np.cos(yaw), np.sin(yaw), 0.0])
+    progress = trans @ heading
+    if np.ptp(progress) < 0.01:
+        return 0.5
+    fractions = column_fire_fractions(pixel_pose, trans.shape[0])
+    slope, intercept = np.polyfit(progress, fractions, 1)
+    return float(intercept + slope * (np.asarray(position, dtype=np.float64) @ heading))
+
+
 def rays_to_range_image(
     points_lidar: np.ndarray,  # [N, 3] points in the lidar frame
     inclinations: np.ndarray,  # [H] row 0 top
