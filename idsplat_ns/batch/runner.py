@@ -14,6 +14,7 @@ from typing import Callable, Optional
 
 from idsplat_ns.batch.layout import read_status, write_status
 from idsplat_ns.batch.plan import SequencePlan, Step, finish_eval
+from idsplat_ns.batch.tasks import run_step
 from idsplat_ns.errors import IDSplatError
 
 
@@ -82,8 +83,6 @@ class Reporter:
 
 
 def _submit(step: Step, plan: SequencePlan, options: dict, env: dict[str, str]):
-    from idsplat_ns.batch.tasks import run_step
-
     return run_step.options(**options, name=f"{step.kind}:{plan.sequence.name}").remote(
         list(step.argv), str(plan.paths.log(step.kind)), env)
 

@@ -23,7 +23,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional
 
+from idsplat_ns.data.formats import is_v2_root
 from idsplat_ns.data.protocols import PANDASET_10, PROTOCOL_NAMES, WAYMO_SETTINGS, protocol_dataset
+from idsplat_ns.data.waymo.splits import experiment_settings, load_split
 from idsplat_ns.errors import IDSplatError
 
 _SAFE_NAME = re.compile(r"[^A-Za-z0-9._-]+")
@@ -106,9 +108,6 @@ def protocol_sequences(protocol: str, data_root: Optional[Path]) -> list[Sequenc
         raise IDSplatError(f"--data-root {root}: no such folder; give the folder that holds the {protocol} sequences")
     if protocol_dataset(protocol) == "pandaset":
         return _all_present([Sequence(seq, root / seq, protocol) for seq in PANDASET_10], root, protocol)
-
-    from idsplat_ns.data.formats import is_v2_root
-    from idsplat_ns.data.waymo.splits import experiment_settings, load_split
 
     setting = experiment_settings()["view_density" if protocol.startswith("view-density-") else WAYMO_SETTINGS[protocol]]
     out = []

@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Optional
 
 import numpy as np
+from idsplat_ns.data.geometry import invert_pose
 
 
 @dataclass(frozen=True)
@@ -184,6 +185,4 @@ class CameraImage:
 
     @property
     def world_to_camera(self) -> np.ndarray:
-        from idsplat_ns.data.geometry import invert_pose
-
         return invert_pose(self.camera_to_world)

@@ -18,6 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal, Optional
 
+from idsplat_ns.data.waymo.splits import experiment_settings, load_split
 from idsplat_ns.errors import IDSplatError
 
 PANDASET_10 = ("001", "011", "016", "028", "053", "063", "084", "106", "123", "158")
@@ -73,8 +74,6 @@ def select_protocol(name: str, sequence: str) -> ProtocolSelection:
         if sequence not in PANDASET_10:
             raise IDSplatError(f"--protocol pandaset-10: sequence {sequence!r} is not one of its ten ({' '.join(PANDASET_10)})")
         return ProtocolSelection(name, sequence, None, 0, None, 1.0, 0.5, None)
-
-    from idsplat_ns.data.waymo.splits import experiment_settings, load_split
 
     if name.startswith("view-density-"):
         setting = experiment_settings()["view_density"]

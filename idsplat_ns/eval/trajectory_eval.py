@@ -24,8 +24,9 @@ from typing import Callable, Optional, Sequence
 
 import numpy as np
 
+from idsplat_ns.data.dynamic_masks import box_silhouette
 from idsplat_ns.data.scene import Scene
-from idsplat_ns.data.tracks import ROAD_USER_CLASSES, ObjectTrack, points_in_box
+from idsplat_ns.data.tracks import ObjectTrack, ROAD_USER_CLASSES, points_in_box
 from idsplat_ns.eval.tracking import PAPER_THRESHOLDS, TrackingMetrics, clear_mot
 
 
@@ -68,8 +69,6 @@ class _FrameIndex:
 def _in_some_image(index: _FrameIndex, frame: int, pose: np.ndarray, size: np.ndarray) -> bool:
     """Whether the box's silhouette overlaps any image of ``frame`` (occlusion not modelled)."""
     import cv2
-
-    from idsplat_ns.data.dynamic_masks import box_silhouette
 
     for image in index.images.get(frame, []):
         poly = box_silhouette(image, pose, size)

@@ -19,6 +19,7 @@ from idsplat_ns.data.scene import Scene
 from idsplat_ns.errors import IDSplatError
 from idsplat_ns.instances.masks.precomputed import PrecomputedMasksConfig
 from idsplat_ns.instances.options import cli_option
+from idsplat_ns.instances.oracle import oracle_instance_tracks
 from idsplat_ns.instances.runner import PreprocessConfig, run_preprocessing
 from idsplat_ns.instances.tracks import InstanceTracks
 
@@ -58,8 +59,6 @@ def instance_tracks_for_mode(
         )
     train_scene = scene.subset(train_frames)
     if mode == "oracle":
-        from idsplat_ns.instances.oracle import oracle_instance_tracks
-
         CONSOLE.print("[bold]Oracle mode: instance tracks from the dataset's annotations (an upper bound, not the method)")
         return oracle_instance_tracks(train_scene)
     if mode != "self-supervised":

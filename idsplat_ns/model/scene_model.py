@@ -29,6 +29,7 @@ import torch
 from torch import Tensor, nn
 
 from idsplat_ns.model.camera_shutter import ImageShutter
+from idsplat_ns.model.composition import compose_gaussians, gaussian_velocities
 from idsplat_ns.model.decoders import RGBDecoderCNN
 from idsplat_ns.model.gaussians import GaussianSet
 from idsplat_ns.model.lidar_head import LidarHead, LidarHeadOutput
@@ -154,7 +155,6 @@ class SceneModel(nn.Module):
         if time is None:  # without a time only the static background is defined
             rows = torch.nonzero(ids == 0).squeeze(1)
             return {k: v.index_select(0, rows) for k, v in g.items()} | {"instance_ids": ids.index_select(0, rows)}
-        from idsplat_ns.model.composition import compose_gaussians, gaussian_velocities
 
         traj_ids = self.trajectories.instance_ids
         if with_velocities:

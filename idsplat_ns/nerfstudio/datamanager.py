@@ -14,6 +14,7 @@ from nerfstudio.data.datamanagers.full_images_datamanager import FullImageDatama
 
 from idsplat_ns.instances.modes import InstanceMode, instance_tracks_for_mode
 from idsplat_ns.instances.runner import PreprocessConfig
+from idsplat_ns.instances.tracks_json import tracks_from_json
 from idsplat_ns.nerfstudio.builtin_scene import instance_cache_dir
 from idsplat_ns.nerfstudio.dataparser import AutoDataParserConfig, IDSplatDataParserUnion
 from idsplat_ns.nerfstudio.dataset import IDSplatDataset, frames_of_split
@@ -59,8 +60,6 @@ class IDSplatDataManager(FullImageDatamanager[IDSplatDataset]):
         train_frames = frames_of_split(meta)
         meta["instance_mode"] = config.instance_mode
         if config.import_tracks is not None:
-            from idsplat_ns.instances.tracks_json import tracks_from_json
-
             meta["instance_mode"] = "imported"
             meta["instance_tracks"] = tracks_from_json(config.import_tracks, scene.subset(train_frames))
             CONSOLE.print(f"[bold]instances: {len(meta['instance_tracks'].instances)} imported from {config.import_tracks}")

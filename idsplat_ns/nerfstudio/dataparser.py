@@ -19,10 +19,17 @@ from nerfstudio.data.dataparsers.base_dataparser import DataParser, DataParserCo
 from nerfstudio.data.scene_box import SceneBox
 from rich.console import Console
 
+from idsplat_ns.data.formats import detect_data
 from idsplat_ns.data.images import undistorted_view
+from idsplat_ns.data.pandaset import load_sequence
+from idsplat_ns.data.protocols import protocol_dataset, select_protocol
 from idsplat_ns.data.scene import Scene, note_empty_sweeps
 from idsplat_ns.data.split import split_frames
+from idsplat_ns.data.waymo import load_segment
+from idsplat_ns.data.waymo.memory import available_memory_bytes, check_fits, estimate_segment_memory
+from idsplat_ns.data.waymo.v1 import read_v1
 from idsplat_ns.errors import IDSplatError
+from idsplat_ns.nerfstudio.builtin_scene import builtin_street
 
 CONSOLE = Console()
 
@@ -67,7 +74,6 @@ class IDSplatDataParserConfig(DataParserConfig):
         """The config that loads: the protocol's settings applied (a copy; self is unchanged)."""
         if self.protocol is None:
             return self
-        from idsplat_ns.data.protocols import protocol_dataset, select_protocol
 
         want = protocol_dataset(self.protocol)
         have = "waymo" if isinstance(self, WaymoDataParserConfig) else "pandaset"
@@ -92,9 +98,6 @@ class BuiltinDataParserConfig(IDSplatDataParserConfig):
     """Street seed (0-19 are the project's development streets)."""
 
     def load_scene(self) -> Scene:
-        from idsplat_ns.data.pandaset import load_sequence
-        from idsplat_ns.nerfstudio.builtin_scene import builtin_street
-
         path = builtin_street(self.preset, self.seed)
         return load_sequence(
             path, cameras=self.cameras, start=self.start_frame, end=self.end_frame, load_lidar=self.load_lidar
@@ -110,8 +113,6 @@ class PandaSetDataParserConfig(IDSplatDataParserConfig):
     """PandaSet lidars to use: 0 the spinning Pandar64, 1 the front PandarGT."""
 
     def load_scene(self) -> Scene:
-        from idsplat_ns.data.pandaset import load_sequence
-
         if self.data is None:
             raise IDSplatError("--data is required for idsplat-pandaset: a sequence folder (pandaset/001); idsplat-builtin needs none")
         return load_sequence(
@@ -143,8 +144,6 @@ class WaymoDataParserConfig(IDSplatDataParserConfig):
     """Hold out every 4th frame: the paper's AD-GS / SplatFlow protocols on Waymo (75% train)."""
 
     def _detected(self):
-        from idsplat_ns.data.formats import detect_data
-
         if self.data is None:
             raise IDSplatError("--data is required for idsplat-waymo: a segment-*.tfrecord file, a folder of them with --segment, or a v2 root")
         found = detect_data(self.data, self.segment, self.context_name)
@@ -156,14 +155,10 @@ class WaymoDataParserConfig(IDSplatDataParserConfig):
         found = self._detected()
         if found.context_name is not None:
             return found.context_name
-        from idsplat_ns.data.waymo.v1 import read_v1
 
         return read_v1(found.path, None, [], 0, 1)[0].context_name  # a file not named segment-<context>
 
     def load_scene(self) -> Scene:
-        from idsplat_ns.data.waymo import load_segment
-        from idsplat_ns.data.waymo.memory import available_memory_bytes, check_fits, estimate_segment_memory
-
         found = self._detected()
         lidars = list(self.lidars) if self.lidars is not None else None
         estimate = estimate_segment_memory(
@@ -217,7 +212,6 @@ class AutoDataParserConfig(IDSplatDataParserConfig):
         if self.data is None:
             _refuse_options(waymo_options + pandaset_options, "the built-in street (no --data)")
             return BuiltinDataParserConfig(preset=self.builtin_preset, seed=self.builtin_seed, **shared)
-        from idsplat_ns.data.formats import detect_data
 
         found = detect_data(self.data, self.segment, self.context_name)
         CONSOLE.print(f"[bold]data:[/bold] {found.describe()}")

@@ -19,10 +19,16 @@ from PIL import Image
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+from idsplat_ns.data.tracks import ROAD_USER_CLASSES
+from idsplat_ns.eval.lidar_evaluation import held_out_lidar_metrics, sweep_range_errors
 from idsplat_ns.eval.lpips import LPIPS_NOTE
 from idsplat_ns.eval.metric_average import average_image_metrics
+from idsplat_ns.eval.metric_plots import plot_lidar_error_by_range, plot_per_image
 from idsplat_ns.eval.object_diagnosis import diagnose_objects, diagnosis_summary
 from idsplat_ns.eval.object_plots import plot_object_timeline
+from idsplat_ns.eval.trajectory_eval import ground_truth_positions, predicted_positions, tracking_metrics
+from idsplat_ns.eval.trajectory_plots import plot_position_errors, plot_scene_top_view
+from idsplat_ns.model.lidar_supervision import sweeps_of_frames
 from idsplat_ns.nerfstudio.dataset import frames_of_split
 
 CONSOLE = Console()
@@ -46,7 +52,6 @@ class IDSplatPipeline(VanillaPipeline):
         scene = self.datamanager.scene
         if trajectories is None or not any(t.moving for t in scene.tracks):
             return {}
-        from idsplat_ns.eval.trajectory_eval import tracking_metrics
 
         with torch.no_grad():
             return tracking_metrics(scene, trajectories.positions_at)
@@ -67,7 +72,6 @@ class IDSplatPipeline(VanillaPipeline):
         """Lidar sweeps of the evaluation frames (none for camera-only models or scenes)."""
         if getattr(self.model, "lidar", None) is None:
             return []
-        from idsplat_ns.model.lidar_supervision import sweeps_of_frames
 
         frames = frames_of_split(self.datamanager.eval_dataset.metadata)
         return sweeps_of_frames(self.datamanager.scene, frames)
@@ -76,8 +80,6 @@ class IDSplatPipeline(VanillaPipeline):
         """Table-2 lidar metrics averaged over the held-out sweeps, and a note on what the data
         cannot measure (the ray-drop accuracy without drop labels). Appends each sweep's
         (measured range, absolute error) to ``range_errors`` for the plot."""
-        from idsplat_ns.eval.lidar_evaluation import held_out_lidar_metrics, sweep_range_errors
-
         sweeps = self._held_out_sweeps()
         if not sweeps:
             return {}, None
@@ -92,11 +94,6 @@ class IDSplatPipeline(VanillaPipeline):
         learned trajectories with their IDs, the annotated moving road users and the ego path, each
         instance's position error over time, PSNR / DPSNR per held-out image and the held-out lidar
         range error by distance. Ground truth: the annotated moving road users of every class."""
-        from idsplat_ns.eval.metric_plots import plot_lidar_error_by_range, plot_per_image
-        from idsplat_ns.data.tracks import ROAD_USER_CLASSES
-        from idsplat_ns.eval.trajectory_eval import ground_truth_positions, predicted_positions
-        from idsplat_ns.eval.trajectory_plots import plot_position_errors, plot_scene_top_view
-
         scene = self.datamanager.scene
         trajectories = self.model.scene_model.trajectories
         with torch.no_grad():

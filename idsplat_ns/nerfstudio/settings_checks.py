@@ -19,6 +19,7 @@ from typing import Any, Iterator, Optional
 
 from idsplat_ns.errors import IDSplatError
 from idsplat_ns.render.compositor import triton_installed
+from idsplat_ns.render.gsplat_backend import gsplat_available
 
 
 @dataclasses.dataclass(frozen=True)
@@ -49,7 +50,6 @@ def check_camera_backend(backend: str, device_type: str) -> None:
     """Refuse a camera backend the training device cannot run (``--machine.device-type``)."""
     if backend != "gsplat":
         return
-    from idsplat_ns.render.gsplat_backend import gsplat_available  # the test rasterize_camera's auto makes; imports torch
 
     if device_type != "cuda" or not gsplat_available():
         raise IDSplatError(f"--pipeline.model.camera-backend gsplat needs a CUDA device and the gsplat package "

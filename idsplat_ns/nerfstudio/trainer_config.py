@@ -20,6 +20,7 @@ from idsplat_ns.atomic import first_created
 from idsplat_ns.errors import register_run_dir
 from idsplat_ns.nerfstudio.config_defaults import FillsMissingFieldsOnLoad
 from idsplat_ns.nerfstudio.settings_checks import check_camera_backend, check_lidar_compositor, validate_settings
+from idsplat_ns.nerfstudio.trainer import IDSplatTrainer
 
 
 @dataclass
@@ -27,7 +28,7 @@ class IDSplatTrainerConfig(FillsMissingFieldsOnLoad, TrainerConfig):
     """nerfstudio's TrainerConfig whose ``save_config`` validates the settings first, and whose
     ``config.yml`` from an older version loads with the defaults of the settings added since."""
 
-    _target: Type = field(default_factory=lambda: _trainer_class())
+    _target: Type = field(default_factory=lambda: IDSplatTrainer)
 
     def save_config(self) -> None:
         validate_settings(self)
@@ -40,9 +41,3 @@ class IDSplatTrainerConfig(FillsMissingFieldsOnLoad, TrainerConfig):
         super().save_config()
         if created is not None:
             register_run_dir(base_dir, created)
-
-
-def _trainer_class() -> type:
-    from idsplat_ns.nerfstudio.trainer import IDSplatTrainer  # imports torch: only when a run starts
-
-    return IDSplatTrainer

@@ -27,8 +27,12 @@ from nerfstudio.viewer.viewer_elements import ViewerButton, ViewerCheckbox, View
 from torch import Tensor
 
 from idsplat_ns.errors import IDSplatError
+from idsplat_ns.model.editing import EditError, SceneTensors
 from idsplat_ns.model.instance_visibility import highlight
+from idsplat_ns.nerfstudio.edit_cli import apply_edits
+from idsplat_ns.nerfstudio.run_files import SCENE_PREFIX, TrainedRun, write_run
 from idsplat_ns.nerfstudio.viewer_scene import StartView, TrajectoryLayer
+from idsplat_ns.runs.checkpoints import latest_complete
 
 if TYPE_CHECKING:
     from nerfstudio.viewer.viewer import Viewer
@@ -72,11 +76,6 @@ def save_hidden_as_run(config_path: str | Path, pipeline_state: Dict[str, Tensor
     TrainerConfig when at hand (a run being trained), else read from ``config_path``. No
     checkpoint file is needed: a run being trained may have none yet. The static background is
     always kept. Returns the new config.yml and the edit lines."""
-    from idsplat_ns.model.editing import EditError, SceneTensors
-    from idsplat_ns.nerfstudio.edit_cli import apply_edits
-    from idsplat_ns.nerfstudio.run_files import SCENE_PREFIX, TrainedRun, write_run
-    from idsplat_ns.runs.checkpoints import latest_complete
-
     removed = sorted(int(i) for i in hidden if int(i) != STATIC_ID)
     if not removed:
         raise IDSplatError("Save edits: no instance is hidden; untick the instances to remove first")

@@ -13,13 +13,12 @@ camera plane or with degenerate covariances give finite values and finite (zero)
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Optional
+from typing import Optional
 
 import torch
 from torch import Tensor
 
-if TYPE_CHECKING:
-    from .rolling_shutter import CameraMotion
+from .rolling_shutter import CameraMotion, shift_camera_points
 
 # Radii above this are clamped before the integer conversion (a Gaussian that large covers any
 # image; the clamp only keeps the int32 cast defined).
@@ -115,8 +114,6 @@ def project_gaussians(
     mx, my, mz = means.to(f64).unbind(-1)  # [N]
     tx, ty, tz = (r[i][0] * mx + r[i][1] * my + r[i][2] * mz + trans[:, i, None] for i in range(3))  # [C, N]
     if motion is not None and not motion.is_global():
-        from .rolling_shutter import shift_camera_points
-
         tx, ty, tz, _ = shift_camera_points(tx, ty, tz, rot, Ks.to(f64), motion, width, height)
     depth_ok = (tz > near_plane) & (tz < far_plane)
     # Culled Gaussians get a dummy depth so that no division below can produce inf/NaN (the

@@ -13,7 +13,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional, Sequence
 
+from idsplat_ns.data.waymo import proto
 from idsplat_ns.data.waymo.records import LASER_NAMES
+from idsplat_ns.data.waymo.tfrecord import iter_record_refs, iter_records
+from idsplat_ns.data.waymo.v2 import find_component_dir
 from idsplat_ns.errors import IDSplatError
 
 RANGE_IMAGE_SHAPES = {"TOP": (64, 2650), "FRONT": (200, 600), "SIDE_LEFT": (200, 600), "SIDE_RIGHT": (200, 600), "REAR": (200, 600)}
@@ -64,8 +67,6 @@ def rays_per_frame(lidars: Sequence[str], second_return: bool) -> int:
 
 
 def _v1_frames_and_bytes(path: Path, start: int, end: Optional[int]) -> tuple[int, int]:
-    from idsplat_ns.data.waymo.tfrecord import iter_record_refs
-
     frames, size = 0, 0
     for ref in iter_record_refs(path):
         if ref.index >= start and (end is None or ref.index < end):
@@ -76,16 +77,11 @@ def _v1_frames_and_bytes(path: Path, start: int, end: Optional[int]) -> tuple[in
 def _v2_frames(root: Path, context_name: str, start: int, end: Optional[int]) -> int:
     import pyarrow.parquet as pq
 
-    from idsplat_ns.data.waymo.v2 import find_component_dir
-
     total = pq.ParquetFile(find_component_dir(root, context_name) / "vehicle_pose" / f"{context_name}.parquet").metadata.num_rows
     return max(0, min(total, end if end is not None else total) - start)
 
 
 def _lidars_in_v1(path: Path, start: int) -> set[str]:
-    from idsplat_ns.data.waymo import proto
-    from idsplat_ns.data.waymo.tfrecord import iter_records
-
     for _, data in iter_records(path, start, start + 1):
         frame = proto.Frame()
         frame.ParseFromString(data)
@@ -95,8 +91,6 @@ def _lidars_in_v1(path: Path, start: int) -> set[str]:
 
 def _lidars_in_v2(root: Path, context_name: str) -> set[str]:
     import pyarrow.parquet as pq
-
-    from idsplat_ns.data.waymo.v2 import find_component_dir
 
     table = find_component_dir(root, context_name) / "lidar" / f"{context_name}.parquet"
     if not table.is_file():
