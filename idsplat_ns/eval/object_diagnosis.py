@@ -17,6 +17,9 @@ from dataclasses import dataclass, field
 from typing import Optional
 
 import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import Tensor
 
 from idsplat_ns.data.scene import Scene
 from idsplat_ns.data.tracks import ROAD_USER_CLASSES
@@ -154,3 +157,22 @@ def diagnosis_summary(records: list[ObjectRecord], min_gap: int = 3) -> dict:
         f"objects_lost_over_{min_gap}_frames": sum(r.longest_lost > min_gap for r in vehicles),
         "objects_split": sum(r.fragments > 1 for r in vehicles),
     }
+
+
+def object_pixel_errors(
+    pred: Tensor,  # [H, W, 3] rendered image in [0, 1]
+    gt: Tensor,  # [H, W, 3] recorded image
+    object_map: Tensor,  # [h, w] index into object_ids, -1 where no annotated mover
+    object_ids: list,
+) -> dict:
+    """``{track_id: (squared error summed over its pixels and channels, pixel count)}`` of each
+    annotated moving road user in an evaluation image; the map follows the render's size (nearest
+    pixel) where they differ."""
+    sq = (pred - gt).square().sum(-1)  # [H, W]
+    index = object_map.to(sq.device).long()
+    if index.shape != sq.shape:
+        index = F.interpolate(index[None, None].float(), size=sq.shape, mode="nearest")[0, 0].long()
+    hit = index >= 0
+    sse = torch.zeros(len(object_ids), device=sq.device).index_add_(0, index[hit], sq[hit])
+    count = torch.bincount(index[hit], minlength=len(object_ids))
+    return {object_ids[k]: (float(sse[k]), int(count[k])) for k in range(len(object_ids)) if int(count[k]) > 0}

@@ -26,11 +26,16 @@ from torch import Tensor, nn
 
 from idsplat_ns.data.images import load_rgb
 from idsplat_ns.eval.image_metrics import psnr, ssim
+from idsplat_ns.eval.lpips import LPIPS
+from idsplat_ns.eval.object_diagnosis import object_pixel_errors
 from idsplat_ns.instances.static_conversion import StaticConversionConfig, convert_static_instances
+from idsplat_ns.model.camera_refinement import RigCorrection
 from idsplat_ns.model.camera_shutter import ShutterLookup
 from idsplat_ns.model.deformation import DeformationConfig, InstanceDeformation, deformable_instance_ids
+from idsplat_ns.model.exposure import ImageExposure
 from idsplat_ns.model.gaussians import GaussianSet
-from idsplat_ns.model.initialisation import InitConfig
+from idsplat_ns.model.initialisation import InitConfig, initial_points_from_scene
+from idsplat_ns.model.instance_init import instance_initial_points
 from idsplat_ns.model.instance_palette import instance_colors
 from idsplat_ns.model.instance_visibility import render_camera_hiding
 from idsplat_ns.model.lidar_supervision import LidarConfig, LidarSupervisor, SweepRender, render_sweep, sweeps_of_frames
@@ -39,6 +44,7 @@ from idsplat_ns.model.path_time import PathClock
 from idsplat_ns.model.scene_model import DecoderConfig, SceneModel
 from idsplat_ns.model.scene_summary import SceneSummary, summarise, summary_lines, write_summary
 from idsplat_ns.model.schedules import resolution_downscale
+from idsplat_ns.model.trajectories import InstanceTrajectories
 from idsplat_ns.nerfstudio.dataparser import OPENCV_TO_OPENGL
 from idsplat_ns.nerfstudio.dataset import frames_of_split
 from idsplat_ns.nerfstudio.render_guard import check_render_tools
@@ -113,6 +119,16 @@ class IDSplatModelConfig(ModelConfig):
     """View-dependent colour: the RGB decoder also takes each pixel's world-frame ray direction, as
     in SplatAD, whose decoder the paper adopts (False: the ablation; a checkpoint keeps the choice
     it was trained with)."""
+    exposure: bool = False
+    """Per-image affine colour (exposure drifting over a drive), learned at each training image and
+    interpolated in time for its camera's other frames (:mod:`idsplat_ns.model.exposure`)."""
+    exposure_prior: float = 0.1
+    """Weight of the prior that keeps each image's colour transform near identity."""
+    camera_refinement: bool = False
+    """Refine each camera's calibration: a rotation and translation per camera, in its own frame,
+    for all its images (:mod:`idsplat_ns.model.camera_refinement`)."""
+    camera_refinement_prior: Tuple[float, float, float] = (1e-3, 1.0, 0.05)
+    """Weight of the calibration prior, and the correction it expects: degrees, metres."""
     camera_backend: Literal["auto", "gsplat", "torch"] = "auto"
     """Camera rasterizer: ``auto`` (gsplat on CUDA where it is installed, else the pure-torch tile
     rasterizer), ``gsplat`` (CUDA only; compiled on first use, minutes) or ``torch`` (any device:
@@ -138,8 +154,6 @@ class IDSplatModel(Model):
         self.instance_tracks = tracks
         trajectories = None
         if tracks is not None and len(tracks.instances) > 0:
-            from idsplat_ns.model.trajectories import InstanceTrajectories
-
             trajectories = InstanceTrajectories.from_instance_tracks(tracks, refine=self.config.refine_trajectories)
         if metadata.get("test_mode", "val") == "val":
             gaussians = self._initial_gaussians(scene, metadata["split_images"], tracks if trajectories is not None else None)
@@ -161,6 +175,9 @@ class IDSplatModel(Model):
             camera_backend=self.config.camera_backend,
         )
         self.shutters = ShutterLookup(scene.images, self.camera_names) if self.config.rolling_shutter else None
+        # Knots at the training images (a checkpoint brings its own: load_state_dict).
+        self.exposure = ImageExposure.for_images(metadata["split_images"], self.camera_names) if self.config.exposure else None
+        self.rig_correction = RigCorrection(len(self.camera_names)) if self.config.camera_refinement else None
         self.lidar = LidarSupervisor(lidar_sweeps, self.config.lidar, seed=self.config.init_seed) if lidar_sweeps else None
         cap = min(self.config.mcmc.cap_max, int(self.config.cap_factor * max(gaussians.num, 1)))
         self.mcmc_config = replace(self.config.mcmc, cap_max=cap)
@@ -216,13 +233,9 @@ class IDSplatModel(Model):
             return load_rgb(im, 0.5)
 
         if tracks is None:
-            from idsplat_ns.model.initialisation import initial_points_from_scene
-
             init = initial_points_from_scene(scene, init_cfg, load, images=train_images)
             ids = None
         else:
-            from idsplat_ns.model.instance_init import instance_initial_points
-
             init = instance_initial_points(scene, tracks, init_cfg, load, images=train_images)
             ids = init.instance_ids
         g = GaussianSet.from_points(init, self.config.decoder.feature_dim, opacity=init_cfg.initial_opacity, seed=self.config.init_seed)
@@ -281,6 +294,10 @@ class IDSplatModel(Model):
             groups["trajectory_rotations"] = list(sm.trajectories.rotation_parameters())
         if sm.deformation is not None:
             groups["deformation"] = list(sm.deformation.parameters())
+        if self.exposure is not None:
+            groups["exposure"] = [self.exposure.affine]
+        if self.rig_correction is not None:
+            groups["camera_refinement"] = list(self.rig_correction.parameters())
         return groups
 
     def load_state_dict(self, state_dict, strict: bool = True, **kwargs):  # type: ignore[override]
@@ -290,6 +307,10 @@ class IDSplatModel(Model):
         self.step = 10**9  # a loaded model renders at full resolution
         rebuilt = self._trajectories_like(state_dict)
         self._deformation_like(state_dict)
+        # The checkpoint's per-image colour (its knots, or none), whatever today's settings say,
+        self.exposure = ImageExposure.like(state_dict, "exposure.").to(self.device) if "exposure.affine" in state_dict else None
+        rig = state_dict.get("rig_correction.rotation")  # and its camera calibration correction
+        self.rig_correction = RigCorrection(rig.shape[0]).to(self.device) if rig is not None else None
         self.scene_model.decoder_like(state_dict, prefix="scene_model.")
         out = super().load_state_dict(state_dict, strict=strict, **kwargs)
         if rebuilt:
@@ -301,8 +322,6 @@ class IDSplatModel(Model):
         checkpoint's shape. The datamanager re-runs preprocessing at ns-eval/viewer time, and a
         different version of the code (or settings) can find other instances than the run was
         trained with: the checkpoint is the truth. Returns whether the trajectories were rebuilt."""
-        from idsplat_ns.model.trajectories import InstanceTrajectories
-
         sm = self.scene_model
         prefix = "scene_model.trajectories."
         if prefix + "positions" not in state_dict:
@@ -376,11 +395,15 @@ class IDSplatModel(Model):
         viewmat, K, width, height = self._camera_inputs(camera, downscale)
         meta = camera.metadata or {}
         sensor = int(meta["sensor_idx"].reshape(-1)[0]) if "sensor_idx" in meta else 0
+        if self.rig_correction is not None and "sensor_idx" in meta:  # recorded cameras only
+            viewmat = self.rig_correction(viewmat, sensor)
         time = self._render_time(camera)
         shutter = self.shutters.at(sensor, time) if self.shutters is not None else None
         # Instances hidden in the viewer's panel are left out of the viewer's renders only.
         outputs = render_camera_hiding(self.scene_model, self.viewer_controls.hidden_now(),
                                        viewmat, K, width, height, time, sensor, shutter)
+        if self.exposure is not None:
+            outputs["rgb"] = self.exposure(outputs["rgb"], sensor, time)
         # Training steps only: the viewer renders under no_grad while the model is in training mode.
         if self.training and torch.is_grad_enabled() and self.lidar is not None and self.lidar.is_lidar_step(self.step):
             rays, sensor_to_world = self.lidar.sample(self.device)
@@ -431,6 +454,11 @@ class IDSplatModel(Model):
             losses["mcmc_reg"] = mcmc_regularisation(self.gaussians, self.mcmc_config)
         if "lidar_rays" in outputs and self.lidar is not None:
             losses.update(self.lidar.losses(outputs))
+        if self.exposure is not None and self.training:
+            losses["exposure_prior"] = self.config.exposure_prior * self.exposure.prior()
+        if self.rig_correction is not None and self.training:
+            weight, degrees, metres = self.config.camera_refinement_prior
+            losses["camera_refinement_prior"] = weight * self.rig_correction.prior(degrees, metres)
         return losses
 
     def get_image_metrics_and_images(self, outputs, batch) -> Tuple[Dict[str, float], Dict[str, Tensor]]:
@@ -457,26 +485,16 @@ class IDSplatModel(Model):
         return metrics, images
 
     def object_pixel_errors(self, outputs, batch) -> Dict[str, Tuple[float, int]]:
-        """``{track_id: (squared error summed over its pixels and channels, pixel count)}`` of each
-        annotated moving road user in an evaluation image (``batch["object_map"]``)."""
+        """Per annotated moving road user of an evaluation image: (squared error sum, pixels)."""
         if "object_map" not in batch or not batch["object_ids"]:
             return {}
         pred = outputs["rgb"].clamp(0, 1)
-        sq = (pred - self._gt_image(batch, pred)).square().sum(-1)  # [H, W]
-        index = batch["object_map"].to(self.device).long()
-        if index.shape != sq.shape:  # the render's size differs: the map follows it (nearest pixel)
-            index = F.interpolate(index[None, None].float(), size=sq.shape, mode="nearest")[0, 0].long()
-        ids, hit = batch["object_ids"], index >= 0
-        sse = torch.zeros(len(ids), device=self.device).index_add_(0, index[hit], sq[hit])
-        count = torch.bincount(index[hit], minlength=len(ids))
-        return {ids[k]: (float(sse[k]), int(count[k])) for k in range(len(ids)) if int(count[k]) > 0}
+        return object_pixel_errors(pred, self._gt_image(batch, pred), batch["object_map"], batch["object_ids"])
 
     def _lpips_metric(self):
         if self.config.lpips_backbone is None:
             return None
         if self._lpips is None:
-            from idsplat_ns.eval.lpips import LPIPS
-
             self._lpips = LPIPS.from_files(self.config.lpips_backbone, net=self.config.lpips_net).to(self.device)
         return self._lpips
 

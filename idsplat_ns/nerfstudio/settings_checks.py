@@ -141,6 +141,7 @@ RULES: tuple[tuple[str, Range], ...] = (
     ("pipeline.model.mcmc.min_opacity", Range(0, 1, high_open=True)),
     ("pipeline.model.mcmc.noise_gate_opacity", UNIT),
     ("pipeline.model.cap_factor", POSITIVE),
+    ("pipeline.model.camera_refinement_prior", POSITIVE),  # its sizes divide
     ("pipeline.model.decoder.feature_dim", AT_LEAST_ONE),
     ("pipeline.model.decoder.hidden", AT_LEAST_ONE),
     ("pipeline.model.decoder.kernel", AT_LEAST_ONE),

@@ -43,6 +43,11 @@ def _parser() -> argparse.ArgumentParser:
         help="readout direction of the rolling shutter (default: top_to_bottom)",
     )
     p.add_argument(
+        "--exposure-drift", type=float, default=0.0,
+        help="auto-exposure drift: each image scaled by 1 + DRIFT * sin(...), once up and down over the drive, "
+             "its own phase per camera (default 0: none; 0.3: gains 0.7-1.3)",
+    )
+    p.add_argument(
         "--traffic", choices=TRAFFIC_KINDS, default=None,
         help="moving vehicles: fixed (the same five manoeuvres on every seed), varied (0-15 drawn per seed) or "
              "hard (close passes, long vehicles, completed turns, cut-in, stop-and-go, U-turn); default: the "
@@ -56,10 +61,11 @@ _DIRECTION_CODES = {"top_to_bottom": "", "bottom_to_top": "bt", "left_to_right":
 
 
 def config_from_args(preset: str, pedestrians: int | None, cyclists: int | None, rolling_shutter_ms: float = 0.0,
-                     rolling_shutter_direction: str = "top_to_bottom", traffic: str | None = None) -> SyntheticConfig:
-    """The preset, with the counts of people, the rolling shutter and the traffic replaced where given;
-    a changed preset gets its own name (`small_p5c0`, `small_rs40`, `small_rs40lr`, `bench_hard`), so
-    that its folder does not collide with the preset's."""
+                     rolling_shutter_direction: str = "top_to_bottom", traffic: str | None = None,
+                     exposure_drift: float = 0.0) -> SyntheticConfig:
+    """The preset, with the counts of people, the rolling shutter, the exposure drift and the traffic
+    replaced where given; a changed preset gets its own name (`small_p5c0`, `small_rs40`,
+    `small_rs40lr`, `small_ex0.3`, `bench_hard`), so that its folder does not collide with the preset's."""
     config = get_preset(preset)
     if traffic is not None and traffic != config.traffic:
         config = dataclasses.replace(config, name=f"{config.name}_{traffic}", traffic=traffic)
@@ -75,6 +81,9 @@ def config_from_args(preset: str, pedestrians: int | None, cyclists: int | None,
         cameras = dataclasses.replace(cameras, rolling_shutter_seconds=rolling_shutter_ms / 1e3,
                                       rolling_shutter_direction=rolling_shutter_direction)
         name = f"{name}_rs{rolling_shutter_ms:g}{_DIRECTION_CODES.get(rolling_shutter_direction, '')}"
+    if exposure_drift != 0:
+        cameras = dataclasses.replace(cameras, exposure_drift=exposure_drift)
+        name = f"{name}_ex{exposure_drift:g}"
     if name == config.name:
         return get_preset(config)
     return get_preset(dataclasses.replace(config, name=name, cameras=cameras, **counts))
@@ -84,7 +93,7 @@ def _main() -> None:
     args = _parser().parse_args()
     start = time.perf_counter()
     config = config_from_args(args.preset, args.pedestrians, args.cyclists, args.rolling_shutter_ms,
-                              args.rolling_shutter_direction, args.traffic)
+                              args.rolling_shutter_direction, args.traffic, args.exposure_drift)
     path = generate_sequence(
         args.out, config, args.seed, overwrite=args.overwrite, workers=args.workers, progress=not args.quiet
     )

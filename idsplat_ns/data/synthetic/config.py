@@ -9,6 +9,8 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from idsplat_ns.errors import IDSplatError
 
 TRAFFIC_KINDS = ("fixed", "varied", "hard")
@@ -53,6 +55,10 @@ class CameraRigConfig:
     road users where they are then; the image time is the centre line's."""
     rolling_shutter_direction: str = "top_to_bottom"
     """Readout direction: ``top_to_bottom``, ``bottom_to_top``, ``left_to_right`` or ``right_to_left``."""
+    exposure_drift: float = 0.0
+    """Auto-exposure as real drives show it: each image is scaled by a gain ``1 + drift * sin(...)``
+    that goes once up and down over the drive, its own phase per camera (0: every image as rendered;
+    0.3: gains 0.7 to 1.3)."""
 
 
 @dataclass(frozen=True)
@@ -181,6 +187,8 @@ def check_config(config: SyntheticConfig) -> None:
         raise IDSplatError(f"num_pedestrians={config.num_pedestrians}: choose 0 to {MAX_PEDESTRIANS} (--pedestrians)")
     if not 0 <= config.num_cyclists <= MAX_CYCLISTS:
         raise IDSplatError(f"num_cyclists={config.num_cyclists}: choose 0 to {MAX_CYCLISTS} (--cyclists)")
+    if not 0.0 <= rig.exposure_drift < 1.0:
+        raise IDSplatError(f"exposure drift {rig.exposure_drift:g}: choose 0 (none) to less than 1 (--exposure-drift)")
     if config.traffic not in TRAFFIC_KINDS:
         raise IDSplatError(f"traffic={config.traffic!r}: choose one of {', '.join(TRAFFIC_KINDS)} (--traffic)")
 
@@ -195,4 +203,13 @@ def config_to_dict(config: SyntheticConfig) -> dict:
     if config.cameras.rolling_shutter_seconds == 0:
         for key in _ROLLING_SHUTTER_FIELDS:
             out["cameras"].pop(key)
+    if config.cameras.exposure_drift == 0:
+        out["cameras"].pop("exposure_drift")
     return out
+
+
+def exposure_gain(rig: CameraRigConfig, camera: int, time: float, duration: float) -> float:
+    """The gain of camera ``camera`` (its index in the rig) at ``time`` seconds of a ``duration``-second
+    drive (see ``CameraRigConfig.exposure_drift``)."""
+    phase = 2.0 * np.pi * camera / len(rig.yaws_deg)
+    return 1.0 + rig.exposure_drift * float(np.sin(2.0 * np.pi * time / max(duration, 1e-9) + phase))

@@ -20,7 +20,7 @@ from tqdm import tqdm
 from idsplat_ns.data.camera import RollingShutter
 from idsplat_ns.data.synthetic import writer
 from idsplat_ns.data.synthetic.camera_render import render_camera
-from idsplat_ns.data.synthetic.config import CAMERA_NAMES, SyntheticConfig, config_to_dict, get_preset
+from idsplat_ns.data.synthetic.config import CAMERA_NAMES, SyntheticConfig, config_to_dict, exposure_gain, get_preset
 from idsplat_ns.data.synthetic.lidar_sim import simulate_sweep
 from idsplat_ns.data.synthetic.raycast import RayCaster
 from idsplat_ns.data.synthetic.rig import cameras, lidar_pose
@@ -138,10 +138,13 @@ def _make_frame(k: int) -> dict:
     name = f"{k:02d}"
     t = k / cfg.frame_rate  # local clock: 0 at frame 0
     out: dict = {"cameras": {}}
-    for cam in _STATE["cameras"]:
+    for c, cam in enumerate(_STATE["cameras"]):
         t_img = t + cam.time_offset
         image, instance, _ = render_camera(caster, cam, t_img, cfg.cameras.supersample, cfg.cameras.shadows,
                                            rolling_shutter_of(cfg))
+        if cfg.cameras.exposure_drift:
+            gain = exposure_gain(cfg.cameras, c, t_img, cfg.num_frames / cfg.frame_rate)
+            image = np.clip(np.round(image.astype(np.float64) * gain), 0, 255).astype(np.uint8)
         writer.write_jpeg(tmp / "camera" / cam.name / f"{name}.jpg", image, cfg.cameras.jpeg_quality)
         write_instance_map(tmp / "idsplat_extras" / "instance_masks" / cam.name / f"{name}.png", instance)
         rot, pos = cam.pose(world, t_img)
