@@ -21,7 +21,7 @@ import pytest
 
 from idsplat_ns.batch.commands import split_user_options, train_command, preprocess_command
 from idsplat_ns.batch.layout import SequencePaths
-from idsplat_ns.runs.checkpoints import checkpoint_step, latest_complete
+from idsplat_ns.runs.checkpoints import checkpoint_step, latest_complete, list_checkpoints
 from idsplat_ns.batch.sequences import Sequence, load_sequences, parse_sequence_file
 from idsplat_ns.errors import IDSplatError
 
@@ -74,7 +74,7 @@ def test_failure_is_isolated_and_the_table_has_the_others(first_batch, streets) 
     status = json.loads((out / "broken" / METHOD / "status.json").read_text())
     assert status["state"] == "failed" and status["step"] == "preprocess"
     assert "front_camera/poses.json" in status["error"] and "\n" not in status["error"]
-    assert f"broken: FAILED at preprocess" in done.stdout and "front_camera/poses.json" in done.stdout
+    assert "broken: FAILED at preprocess" in done.stdout and "front_camera/poses.json" in done.stdout
     assert not (out / "broken" / METHOD / "eval.json").exists()
     # The others trained, were evaluated and are in the table, with the mean of the two.
     rows = _csv_rows(out / f"{METHOD}_results.csv")
@@ -151,7 +151,7 @@ def test_killed_batch_resumes_the_training(streets, tmp_path: Path) -> None:
     paths = SequencePaths(out, "synth_tiny_0", METHOD)
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     try:
-        _wait_for(lambda: latest_complete(paths.checkpoints) is not None or proc.poll() is not None, 300, "a checkpoint")
+        _wait_for(lambda: len(list_checkpoints(paths.checkpoints)) >= 2 or proc.poll() is not None, 300, "two checkpoints")
         assert proc.poll() is None, "the batch ended before it could be killed"
         os.kill(proc.pid, signal.SIGKILL)  # the driver only: Ray and the training must go with it
         proc.wait()
@@ -161,15 +161,19 @@ def test_killed_batch_resumes_the_training(streets, tmp_path: Path) -> None:
     # Ray takes a second or two to notice its driver is gone; the training goes on until then, so
     # the run is long enough (60 steps, about 5 per second here) not to end in that window.
     _wait_for(lambda: not _processes_mentioning(str(out)), 30, "the killed batch's training to end")
-    killed_at = checkpoint_step(latest_complete(paths.checkpoints))
+    # Then the newest checkpoint is damaged (a copy cut short): the batch resumes from the one before.
+    newest, previous = list_checkpoints(paths.checkpoints)[:2]
+    newest.write_bytes(newest.read_bytes()[:100])
+    killed_at = checkpoint_step(previous)
     assert killed_at < LAST_STEP
 
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=600, env={**os.environ, "COLUMNS": "200"})
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     log = (out / "batch.log").read_text()
     rerun = log[log.rindex("synth_tiny_0: training"):]
-    assert "resume from step" in rerun and "preprocessing" not in rerun
-    assert "Resuming from" in paths.log("train").read_text()
+    assert f"resume from step {killed_at}" in rerun and "preprocessing" not in rerun
+    train_log = " ".join(paths.log("train").read_text().split())
+    assert f"{newest.name}: unreadable checkpoint" in train_log and f"resuming from {previous.name} instead" in train_log
     assert checkpoint_step(latest_complete(paths.checkpoints)) == LAST_STEP  # the run's steps in all, not that many more
     assert json.loads(paths.eval_json.read_text())["results"]["psnr"] > 5.0
 
