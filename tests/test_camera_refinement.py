@@ -73,3 +73,29 @@ def test_a_turned_camera_is_found_again_from_its_images() -> None:
     print(f"L1 {before:.4f} -> {after:.4f}; turn left after fitting {residual:.3f} deg (was 1 deg)")
     assert after < 0.5 * before
     assert residual < 0.2
+
+
+def test_the_generator_writes_a_miscalibrated_camera(tiny_street, tmp_path) -> None:
+    """``idsplat-synth --calibration-error-deg 1 0.5``: the front-left camera's written pose is turned
+    by the error (1.118 degrees in all), its images are those of the true pose, other cameras as before."""
+    import filecmp
+    import json
+
+    from idsplat_ns.data.synthetic import generate_sequence
+    from idsplat_ns.data.synthetic.cli import config_from_args
+    from idsplat_ns.data.synthetic.config import config_to_dict, get_preset
+
+    assert "calibration_error_deg" not in config_to_dict(get_preset("tiny"))["cameras"]  # old streets stay cache hits
+    config = config_from_args("tiny", None, None, calibration_error_deg=(1.0, 0.5))
+    assert config.name == "tiny_cal1x0.5"
+    wrong = generate_sequence(tmp_path, config, seed=0, progress=False)
+
+    def headings(street, cam):
+        return [Rotation.from_quat([p["heading"][k] for k in "xyzw"])
+                for p in json.loads((street / "camera" / cam / "poses.json").read_text())]
+
+    turned = [np.degrees((a.inv() * b).magnitude()) for a, b in
+              zip(headings(tiny_street, "front_left_camera"), headings(wrong, "front_left_camera"))]
+    assert np.allclose(turned, np.degrees(np.hypot(np.radians(1.0), np.radians(0.5))), atol=1e-3)
+    assert (tiny_street / "camera/front_camera/poses.json").read_text() == (wrong / "camera/front_camera/poses.json").read_text()
+    assert filecmp.cmp(tiny_street / "camera/front_left_camera/03.jpg", wrong / "camera/front_left_camera/03.jpg", shallow=False)

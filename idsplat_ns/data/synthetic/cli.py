@@ -48,6 +48,11 @@ def _parser() -> argparse.ArgumentParser:
              "its own phase per camera (default 0: none; 0.3: gains 0.7-1.3)",
     )
     p.add_argument(
+        "--calibration-error-deg", type=float, nargs=2, default=(0.0, 0.0), metavar=("YAW", "PITCH"),
+        help="write the front-left camera's pose turned by YAW about its vertical and PITCH about its horizontal "
+             "axis, degrees, in every frame, while rendering it from the true pose (default 0 0: a perfect rig)",
+    )
+    p.add_argument(
         "--traffic", choices=TRAFFIC_KINDS, default=None,
         help="moving vehicles: fixed (the same five manoeuvres on every seed), varied (0-15 drawn per seed) or "
              "hard (close passes, long vehicles, completed turns, cut-in, stop-and-go, U-turn); default: the "
@@ -62,7 +67,7 @@ _DIRECTION_CODES = {"top_to_bottom": "", "bottom_to_top": "bt", "left_to_right":
 
 def config_from_args(preset: str, pedestrians: int | None, cyclists: int | None, rolling_shutter_ms: float = 0.0,
                      rolling_shutter_direction: str = "top_to_bottom", traffic: str | None = None,
-                     exposure_drift: float = 0.0) -> SyntheticConfig:
+                     exposure_drift: float = 0.0, calibration_error_deg: tuple = (0.0, 0.0)) -> SyntheticConfig:
     """The preset, with the counts of people, the rolling shutter, the exposure drift and the traffic
     replaced where given; a changed preset gets its own name (`small_p5c0`, `small_rs40`,
     `small_rs40lr`, `small_ex0.3`, `bench_hard`), so that its folder does not collide with the preset's."""
@@ -84,6 +89,9 @@ def config_from_args(preset: str, pedestrians: int | None, cyclists: int | None,
     if exposure_drift != 0:
         cameras = dataclasses.replace(cameras, exposure_drift=exposure_drift)
         name = f"{name}_ex{exposure_drift:g}"
+    if any(calibration_error_deg):
+        cameras = dataclasses.replace(cameras, calibration_error_deg=tuple(float(v) for v in calibration_error_deg))
+        name = f"{name}_cal{calibration_error_deg[0]:g}x{calibration_error_deg[1]:g}"
     if name == config.name:
         return get_preset(config)
     return get_preset(dataclasses.replace(config, name=name, cameras=cameras, **counts))
@@ -93,7 +101,7 @@ def _main() -> None:
     args = _parser().parse_args()
     start = time.perf_counter()
     config = config_from_args(args.preset, args.pedestrians, args.cyclists, args.rolling_shutter_ms,
-                              args.rolling_shutter_direction, args.traffic, args.exposure_drift)
+                              args.rolling_shutter_direction, args.traffic, args.exposure_drift, args.calibration_error_deg)
     path = generate_sequence(
         args.out, config, args.seed, overwrite=args.overwrite, workers=args.workers, progress=not args.quiet
     )

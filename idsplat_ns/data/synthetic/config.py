@@ -59,6 +59,10 @@ class CameraRigConfig:
     """Auto-exposure as real drives show it: each image is scaled by a gain ``1 + drift * sin(...)``
     that goes once up and down over the drive, its own phase per camera (0: every image as rendered;
     0.3: gains 0.7 to 1.3)."""
+    calibration_error_deg: tuple[float, float] = (0.0, 0.0)
+    """A miscalibrated camera, as real rigs have: the written pose of the front-left camera is turned
+    by (about its vertical axis, about its horizontal axis) degrees in every frame, while its images
+    are rendered from the true pose (0, 0: a perfect rig)."""
 
 
 @dataclass(frozen=True)
@@ -205,6 +209,8 @@ def config_to_dict(config: SyntheticConfig) -> dict:
             out["cameras"].pop(key)
     if config.cameras.exposure_drift == 0:
         out["cameras"].pop("exposure_drift")
+    if not any(config.cameras.calibration_error_deg):
+        out["cameras"].pop("calibration_error_deg")
     return out
 
 
@@ -213,3 +219,17 @@ def exposure_gain(rig: CameraRigConfig, camera: int, time: float, duration: floa
     drive (see ``CameraRigConfig.exposure_drift``)."""
     phase = 2.0 * np.pi * camera / len(rig.yaws_deg)
     return 1.0 + rig.exposure_drift * float(np.sin(2.0 * np.pi * time / max(duration, 1e-9) + phase))
+
+
+
+MISCALIBRATED_CAMERA = 1
+"""Index of the camera whose calibration ``calibration_error_deg`` turns (front-left)."""
+
+
+def calibration_error(rig: CameraRigConfig) -> np.ndarray:
+    """[3, 3] rotation in the camera frame (OpenCV axes: y down, x right) that the written pose of
+    the miscalibrated camera carries: about the vertical axis, then the horizontal one."""
+    yaw, pitch = np.radians(rig.calibration_error_deg)
+    ry = np.array([[np.cos(yaw), 0.0, np.sin(yaw)], [0.0, 1.0, 0.0], [-np.sin(yaw), 0.0, np.cos(yaw)]])
+    rx = np.array([[1.0, 0.0, 0.0], [0.0, np.cos(pitch), -np.sin(pitch)], [0.0, np.sin(pitch), np.cos(pitch)]])
+    return ry @ rx

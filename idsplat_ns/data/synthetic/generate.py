@@ -20,7 +20,15 @@ from tqdm import tqdm
 from idsplat_ns.data.camera import RollingShutter
 from idsplat_ns.data.synthetic import writer
 from idsplat_ns.data.synthetic.camera_render import render_camera
-from idsplat_ns.data.synthetic.config import CAMERA_NAMES, SyntheticConfig, config_to_dict, exposure_gain, get_preset
+from idsplat_ns.data.synthetic.config import (
+    CAMERA_NAMES,
+    MISCALIBRATED_CAMERA,
+    SyntheticConfig,
+    calibration_error,
+    config_to_dict,
+    exposure_gain,
+    get_preset,
+)
 from idsplat_ns.data.synthetic.lidar_sim import simulate_sweep
 from idsplat_ns.data.synthetic.raycast import RayCaster
 from idsplat_ns.data.synthetic.rig import cameras, lidar_pose
@@ -148,6 +156,8 @@ def _make_frame(k: int) -> dict:
         writer.write_jpeg(tmp / "camera" / cam.name / f"{name}.jpg", image, cfg.cameras.jpeg_quality)
         write_instance_map(tmp / "idsplat_extras" / "instance_masks" / cam.name / f"{name}.png", instance)
         rot, pos = cam.pose(world, t_img)
+        if c == MISCALIBRATED_CAMERA and any(cfg.cameras.calibration_error_deg):
+            rot = rot @ calibration_error(cfg.cameras)  # written wrong, rendered right
         out["cameras"][cam.name] = (
             writer.pose_dict(world.local_to_world_rotation @ rot, world.points_to_world(pos[None])[0]),
             cfg.start_time + t_img,
