@@ -35,6 +35,21 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
+def wait_for_http(url: str, proc: subprocess.Popen, log: Path, timeout: float) -> None:
+    """Until ``url`` answers 200; fails with the server's log if ``proc`` ends or ``timeout`` passes."""
+    deadline = time.time() + timeout
+    while True:
+        try:
+            with urllib.request.urlopen(url, timeout=2) as response:
+                if response.status == 200:
+                    return
+        except OSError:
+            pass
+        assert proc.poll() is None, f"the server exited ({proc.returncode}):\n{log.read_text()[-3000:]}"
+        assert time.time() < deadline, f"the server did not serve {url} within {timeout:.0f} s:\n{log.read_text()[-3000:]}"
+        time.sleep(0.5)
+
+
 class Chromium:
     """One headless browser with one page; ``with Chromium() as page: page.open(url)``."""
 

@@ -18,6 +18,7 @@ import time
 from pathlib import Path
 
 import pytest
+from _chromium import free_port
 
 from idsplat_ns.batch.commands import split_user_options, train_command, preprocess_command
 from idsplat_ns.batch.layout import SequencePaths
@@ -279,14 +280,6 @@ def test_a_local_ray_that_times_out_at_startup_is_started_again(monkeypatch) -> 
     assert calls.count("init") == STARTUP_ATTEMPTS == 3
 
 
-def _free_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @pytest.mark.slow
 def test_address_of_a_cluster_with_token_authentication(streets, tmp_path: Path) -> None:
     """A cluster started with ``ray start --head`` and a token (Ray 2.59+ does so whenever a token
@@ -296,7 +289,7 @@ def test_address_of_a_cluster_with_token_authentication(streets, tmp_path: Path)
 
     import tempfile
 
-    port = _free_port()
+    port = free_port()
     # Its own Ray temp folder (short: Ray's socket paths must fit 107 characters), so that the
     # head's record of itself never reaches another Ray on this machine.
     ray_tmp = Path(tempfile.mkdtemp(prefix="ray-", dir="/tmp"))

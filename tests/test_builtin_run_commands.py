@@ -10,15 +10,13 @@ from __future__ import annotations
 
 import subprocess
 import sys
-import time
-import urllib.request
 from pathlib import Path
 
 import pytest
 
 pytest.importorskip("nerfstudio")
 
-from _chromium import free_port  # noqa: E402
+from _chromium import free_port, wait_for_http  # noqa: E402
 
 pytestmark = pytest.mark.slow
 
@@ -55,17 +53,7 @@ def test_ns_viewer_serves_a_builtin_street_run(builtin_run: Path, tmp_path: Path
                                  "--viewer.websocket-port", str(port), "--viewer.websocket-host", "127.0.0.1"],
                                 stdout=out, stderr=subprocess.STDOUT)
     try:
-        deadline = time.time() + 180
-        while True:
-            try:
-                with urllib.request.urlopen(f"http://127.0.0.1:{port}", timeout=2) as response:
-                    assert response.status == 200
-                    break
-            except OSError:
-                pass
-            assert proc.poll() is None, f"ns-viewer exited ({proc.returncode}):\n{log.read_text()[-3000:]}"
-            assert time.time() < deadline, f"ns-viewer did not serve within 180 s:\n{log.read_text()[-3000:]}"
-            time.sleep(0.5)
+        wait_for_http(f"http://127.0.0.1:{port}", proc, log, timeout=180)
     finally:
         proc.terminate()
         try:

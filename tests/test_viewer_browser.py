@@ -13,7 +13,6 @@ import re
 import subprocess
 import sys
 import time
-import urllib.request
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +21,7 @@ import torch
 
 pytest.importorskip("nerfstudio")
 
-from _chromium import Chromium, chromium_path, free_port  # noqa: E402
+from _chromium import Chromium, chromium_path, free_port, wait_for_http  # noqa: E402
 
 pytestmark = pytest.mark.slow
 
@@ -41,20 +40,6 @@ def run_config(tiny_street, tmp_path_factory):
     from _tiny_run import tiny_run
 
     return tiny_run(tiny_street, tmp_path_factory)
-
-
-def _wait_for_http(url: str, proc: subprocess.Popen, log: Path, timeout: float) -> None:
-    deadline = time.time() + timeout
-    while True:
-        try:
-            with urllib.request.urlopen(url, timeout=2) as response:
-                if response.status == 200:
-                    return
-        except OSError:
-            pass
-        assert proc.poll() is None, f"ns-viewer exited ({proc.returncode}):\n{log.read_text()[-3000:]}"
-        assert time.time() < deadline, f"ns-viewer did not serve {url} within {timeout:.0f} s:\n{log.read_text()[-3000:]}"
-        time.sleep(0.5)
 
 
 def _reference(pipeline, width: int, height: int) -> dict:
@@ -142,7 +127,7 @@ def test_viewer_renders_the_scene_and_hiding_an_instance_removes_it(chromium, ru
     try:
         pipeline, _ = loaded_pipeline(run_config)  # while ns-viewer starts
         url = f"http://127.0.0.1:{port}"
-        _wait_for_http(url, proc, log, timeout=180)
+        wait_for_http(url, proc, log, timeout=180)
         with Chromium(1200, 800) as page:
             page.call("Emulation.setDeviceMetricsOverride", width=1200, height=800, deviceScaleFactor=1, mobile=False)
             page.open(url)

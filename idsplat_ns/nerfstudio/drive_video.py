@@ -150,12 +150,19 @@ def run(args: argparse.Namespace) -> Path:
     _check_args(args)
     from nerfstudio.utils.eval_utils import eval_setup
 
-    from idsplat_ns.nerfstudio.run_files import check_run
-
-    check_run(args.load_config)  # nerfstudio's loader would end in a traceback on another method's run or a damaged checkpoint
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    _, pipeline, _, _ = eval_setup(args.load_config, test_mode="test")
+    from idsplat_ns.nerfstudio.command_failures import explain_checkpoint_load
+    from idsplat_ns.nerfstudio.run_files import check_run
+
+    check_run(args.load_config)  # another method's run, no checkpoint: one line before the pipeline is built
+    try:
+        _, pipeline, _, _ = eval_setup(args.load_config, test_mode="test")
+    except Exception as err:  # noqa: BLE001 - a checkpoint that does not load, in nerfstudio's loader
+        line = explain_checkpoint_load(type(err), err, err.__traceback__)
+        if line is None:
+            raise
+        raise IDSplatError(line) from None
     with Progress(TextColumn("[progress.description]{task.description}"), BarColumn(), MofNCompleteColumn(),
                   TimeElapsedColumn(), transient=True) as bar:
         task = bar.add_task("[green]Rendering the drive...", total=None)

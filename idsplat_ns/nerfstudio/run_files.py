@@ -26,7 +26,7 @@ from nerfstudio.engine.trainer import TrainerConfig
 from idsplat_ns.atomic import atomic_path, removed_on_failure
 from idsplat_ns.errors import IDSplatError
 from idsplat_ns.nerfstudio.trainer_config import IDSplatTrainerConfig
-from idsplat_ns.runs.checkpoints import checkpoint_problem, load_latest
+from idsplat_ns.runs.checkpoints import folder_problem, load_latest
 
 SCENE_PREFIX = "_model.scene_model."  # state-dict prefix of the SceneModel inside a pipeline
 
@@ -82,10 +82,12 @@ def checkpoint_folder(config, config_path: Path) -> Path:
 
 def check_run(config_path: Path):
     """Before a command builds the run's pipeline through nerfstudio's loader (which reads the
-    folder the config names): the config is an IDSplat run's and its newest checkpoint loads.
+    folder the config names): the config is an IDSplat run's and its checkpoint folder holds
+    checkpoints and nothing else (read without loading one; a checkpoint that then does not load
+    is explained by :func:`~idsplat_ns.nerfstudio.command_failures.explain_checkpoint_load`).
     Returns the config."""
     config = read_run_config(config_path)
-    problem = checkpoint_problem(Path(config.get_checkpoint_dir()))
+    problem = folder_problem(Path(config.get_checkpoint_dir()), strays=True)
     if problem is not None:
         raise IDSplatError(problem)
     return config

@@ -30,7 +30,15 @@ from nerfstudio.utils.rich_utils import CONSOLE
 
 from idsplat_ns.atomic import TMP_MARK, atomic_path
 from idsplat_ns.nerfstudio.random_state import capture_random_state, restore_random_state
-from idsplat_ns.runs.checkpoints import LoadedCheckpoint, keep_newest, load_checkpoint, load_latest, set_aside, verify_written
+from idsplat_ns.runs.checkpoints import (
+    LoadedCheckpoint,
+    keep_newest,
+    list_checkpoints,
+    load_checkpoint,
+    load_latest,
+    set_aside,
+    verify_written,
+)
 
 
 class IDSplatTrainer(Trainer):
@@ -43,7 +51,7 @@ class IDSplatTrainer(Trainer):
         if self.config.load_dir is not None and self.config.load_step is not None:
             return load_checkpoint(Path(self.config.load_dir) / f"step-{self.config.load_step:09d}.ckpt")
         folder = Path(self.config.load_dir) if self.config.load_dir is not None else self.checkpoint_dir
-        if self.config.load_dir is None and not any(folder.glob("step-*.ckpt")):
+        if self.config.load_dir is None and not list_checkpoints(folder):
             return None
         loaded = load_latest(folder)
         if loaded.skipped:

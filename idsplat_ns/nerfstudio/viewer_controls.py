@@ -30,7 +30,7 @@ from idsplat_ns.errors import IDSplatError
 from idsplat_ns.model.editing import EditError, SceneTensors
 from idsplat_ns.model.instance_visibility import highlight
 from idsplat_ns.nerfstudio.edit_cli import apply_edits
-from idsplat_ns.nerfstudio.run_files import SCENE_PREFIX, TrainedRun, write_run
+from idsplat_ns.nerfstudio.run_files import SCENE_PREFIX, TrainedRun, read_run_config, write_run
 from idsplat_ns.nerfstudio.viewer_scene import StartView, TrajectoryLayer
 from idsplat_ns.runs.checkpoints import latest_complete
 
@@ -57,16 +57,15 @@ def config_candidates(viewer: Viewer) -> List[Path]:
 
 
 def read_config(config_path: str | Path):
-    """The TrainerConfig of a run's config.yml; one line naming the file when it cannot be read."""
-    import yaml
-
+    """The TrainerConfig of a run's config.yml (:func:`~idsplat_ns.nerfstudio.run_files.read_run_config`);
+    one line naming the file when it cannot be read."""
     path = Path(str(config_path).strip()).expanduser()
     if not str(config_path).strip() or not path.is_file():
         raise IDSplatError(f"Save edits: Run config {str(config_path)!r} is not a file; give the config.yml of the run in the viewer")
     try:
-        return yaml.load(path.read_text(), Loader=yaml.Loader)
-    except yaml.YAMLError as err:
-        raise IDSplatError(f"Save edits: {path} is not a readable config ({type(err).__name__}); give a run's config.yml") from None
+        return read_run_config(path)
+    except IDSplatError as err:
+        raise IDSplatError(f"Save edits: {err}") from None
 
 
 def save_hidden_as_run(config_path: str | Path, pipeline_state: Dict[str, Tensor], step: int, hidden: frozenset,

@@ -81,14 +81,22 @@ class LoadedCheckpoint:
     """The file loaded."""
     state: dict
     """Its content: ``step``, ``pipeline`` and, from training, the optimiser state."""
-    skipped: list[Path] = field(default_factory=list)
-    """Newer checkpoints that did not load."""
-    reasons: list[str] = field(default_factory=list)
-    """One line per skipped checkpoint: its path and why."""
+    why_skipped: dict[Path, str] = field(default_factory=dict)
+    """Newer checkpoints that did not load, newest first, each with why."""
 
     @property
     def step(self) -> int:
         return int(self.state["step"])
+
+    @property
+    def skipped(self) -> list[Path]:
+        """Newer checkpoints that did not load."""
+        return list(self.why_skipped)
+
+    @property
+    def reasons(self) -> list[str]:
+        """One line per skipped checkpoint: its path and why."""
+        return [f"{path}: {why}" for path, why in self.why_skipped.items()]
 
 
 def _read(path: Path) -> tuple[Optional[dict], str]:
@@ -117,20 +125,17 @@ def load_latest(folder: Path) -> LoadedCheckpoint:
     """The newest checkpoint in ``folder`` that loads; newer ones that do not are listed in ``skipped``.
 
     Raises a one-line :class:`IDSplatError` when the folder holds none, or none that loads."""
-    folder = Path(folder)
-    if not folder.is_dir():
-        raise IDSplatError(f"{folder}: no checkpoint folder; train the run first")
-    found = list_checkpoints(folder)
-    if not found:
-        raise IDSplatError(f"{folder}: no step-*.ckpt checkpoint; train the run first")
-    skipped, reasons = [], []
-    for path in found:
+    problem = folder_problem(Path(folder))
+    if problem is not None:
+        raise IDSplatError(problem)
+    why_skipped: dict[Path, str] = {}
+    for path in list_checkpoints(folder):
         state, why = _read(path)
         if state is not None:
-            return LoadedCheckpoint(path, state, skipped, reasons)
-        skipped.append(path)
-        reasons.append(f"{path}: {why}")
-    raise IDSplatError(_none_loads(reasons[0]))
+            return LoadedCheckpoint(path, state, why_skipped)
+        why_skipped[path] = why
+    newest, why = next(iter(why_skipped.items()))
+    raise IDSplatError(_none_loads(f"{newest}: {why}"))
 
 
 def _none_loads(newest: str) -> str:
@@ -149,18 +154,29 @@ def set_aside(paths: list[Path]) -> list[Path]:
     return moved
 
 
+def folder_problem(folder: Path, strays: bool = False) -> Optional[str]:
+    """Why ``folder`` holds no checkpoint to load, found without loading one: it is missing, holds
+    no ``step-*.ckpt``, or (``strays``) holds another file, which nerfstudio's loader would read as a
+    step. None when there are checkpoints to try."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        return f"{folder}: no checkpoint folder; train the run first"
+    names = sorted(p.name for p in folder.iterdir() if not _NAME.match(p.name)) if strays else []
+    if names:
+        return f"{folder / names[0]}: not a step-*.ckpt checkpoint; move it out of {folder}"
+    if not list_checkpoints(folder):
+        return f"{folder}: no step-*.ckpt checkpoint; train the run first"
+    return None
+
+
 def checkpoint_problem(folder: Path) -> Optional[str]:
     """Why nerfstudio's loader (newest name, every name in the folder parsed as a step) cannot load
     ``folder``, as one line; None when it should (the failure is then not the checkpoint's)."""
     folder = Path(folder)
-    if not folder.is_dir():
-        return f"{folder}: no checkpoint folder; train the run first"
-    strays = sorted(p.name for p in folder.iterdir() if not _NAME.match(p.name))
-    if strays:
-        return f"{folder / strays[0]}: not a step-*.ckpt checkpoint; move it out of {folder}"
+    problem = folder_problem(folder, strays=True)
+    if problem is not None:
+        return problem
     found = list_checkpoints(folder)
-    if not found:
-        return f"{folder}: no step-*.ckpt checkpoint; train the run first"
     state, why = _read(found[0])
     if state is not None:
         return None
@@ -169,4 +185,3 @@ def checkpoint_problem(folder: Path) -> Optional[str]:
         return _none_loads(f"{found[0]}: {why}")
     return (f"{found[0]}: {why}; the previous checkpoint {earlier.name} loads: move the damaged one out of "
             f"{folder.name}/ (a resumed ns-train moves it to {DAMAGED_DIR}/ by itself)")
-
