@@ -39,7 +39,7 @@ demo: install
 	$(BIN)/ns-train idsplat-fast --vis tensorboard --output-dir outputs --experiment-name demo --timestamp run
 	$(BIN)/ns-eval --load-config $(DEMO)/idsplat-fast/run/config.yml \
 		--output-path $(DEMO)/eval.json --render-output-path $(DEMO)/renders
-	$(BIN)/python -m idsplat_ns.nerfstudio.report $(DEMO)/eval.json --renders $(DEMO)/renders \
+	$(BIN)/idsplat-report $(DEMO)/eval.json --renders $(DEMO)/renders \
 		--checkpoint-dir $(DEMO)/idsplat-fast/run/nerfstudio_models
 
 bench: install

@@ -45,7 +45,7 @@ import torch
 from idsplat_ns.eval.tracking import aggregate
 from idsplat_ns.eval.trajectory_eval import flatten_metrics, tracking_summary
 from idsplat_ns.instances import runner
-from idsplat_ns.instances.features.fpfh import import_open3d
+from idsplat_ns._compat.libusb import import_open3d
 from idsplat_ns.instances.masks.config import MaskConfig
 from idsplat_ns.instances.modes import ground_truth_masks
 from idsplat_ns.instances.runner import PreprocessConfig, PreprocessResult, run_preprocessing

@@ -45,7 +45,7 @@ REPO = Path(__file__).resolve().parents[1]
 # The project's commands as modules of this Python: they run where the project is importable but its
 # console scripts are not installed (a GPU machine with the project on PYTHONPATH).
 SYNTH = [sys.executable, "-m", "idsplat_ns.data.synthetic.cli"]
-PREPROCESS = [sys.executable, "-m", "idsplat_ns.nerfstudio.preprocess_cli"]
+PREPROCESS = [sys.executable, "-m", "idsplat_ns.cli.preprocess"]
 NS_EVAL = [sys.executable, "-c", "import sys; from nerfstudio.scripts.eval import entrypoint; sys.argv[0] = 'ns-eval'; entrypoint()"]
 
 # name: (steps, {dotted model-config field: value}). Knobs move one at a time around 600 and 1000 steps

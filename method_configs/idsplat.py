@@ -18,7 +18,7 @@ from nerfstudio.plugins.types import MethodSpecification
 
 import idsplat_ns._compat.startup as _startup
 from idsplat_ns.errors import install_excepthook
-from idsplat_ns.nerfstudio.command_failures import explain_checkpoint_load, explain_export, remove_export_folder
+from idsplat_ns.cli.command_failures import explain_checkpoint_load, explain_export, remove_export_folder
 from idsplat_ns.nerfstudio.datamanager import IDSplatDataManagerConfig
 from idsplat_ns.nerfstudio.model import IDSplatModelConfig
 from idsplat_ns.nerfstudio.pipeline import IDSplatPipelineConfig

@@ -327,7 +327,7 @@ SETTING_CASES = [
 def test_default_settings_are_valid() -> None:
     from method_configs.idsplat import idsplat_fast_method, idsplat_method, idsplat_preview_method
     from idsplat_ns.nerfstudio import dataparser as dp
-    from idsplat_ns.nerfstudio.settings_checks import validate_settings
+    from idsplat_ns.runs.settings_checks import validate_settings
 
     for method in (idsplat_method, idsplat_fast_method, idsplat_preview_method):
         validate_settings(method.config)
@@ -339,7 +339,7 @@ def test_default_settings_are_valid() -> None:
 
 @pytest.mark.parametrize("edit,option", [c[1:] for c in SETTING_CASES], ids=[c[0] for c in SETTING_CASES])
 def test_bad_setting_fails_in_one_line(edit, option: str) -> None:
-    from idsplat_ns.nerfstudio.settings_checks import validate_settings
+    from idsplat_ns.runs.settings_checks import validate_settings
 
     cfg = _config()
     edit(cfg)
@@ -450,7 +450,7 @@ def test_empty_lidar_sweeps_are_named_once(tiny_street: Path, capsys) -> None:
 
 def test_outputs_are_checked_before_any_work(tmp_path: Path) -> None:
     from idsplat_ns.atomic import check_writable
-    from idsplat_ns.nerfstudio.preprocess_cli import PreprocessArgs, preprocess
+    from idsplat_ns.cli.preprocess import PreprocessArgs, preprocess
 
     a_file = tmp_path / "a-file"
     a_file.write_text("x")

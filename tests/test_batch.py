@@ -216,7 +216,7 @@ def test_sequence_file_and_commands(tmp_path: Path) -> None:
 def test_the_preprocess_command_is_what_idsplat_preprocess_parses() -> None:
     # The batch translates ns-train options for idsplat-preprocess: true/false settings keep
     # ns-train's spelling, and the lidar selection (which changes the stage caches' input) carries over.
-    from idsplat_ns.nerfstudio.preprocess_cli import parse_args
+    from idsplat_ns.cli.preprocess import parse_args
 
     user = split_user_options(["--pipeline.datamanager.preprocess.lifting.use-dbscan", "False",
                                "--pipeline.datamanager.preprocess.trajectory.registration.max-iterations", "1000",

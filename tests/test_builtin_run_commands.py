@@ -67,7 +67,7 @@ def test_ns_render_edit_and_drive_on_a_builtin_street_run(builtin_run: Path, tmp
     from nerfstudio.scripts.render import DatasetRender
     from nerfstudio.utils.eval_utils import eval_setup
 
-    from idsplat_ns.nerfstudio import drive_video, edit_cli
+    from idsplat_ns.cli import edit, render_drive
 
     # ns-render dataset: every output it writes must be an image (a colour vector once was not).
     DatasetRender(load_config=builtin_run, output_path=tmp_path / "renders").main()
@@ -75,11 +75,11 @@ def test_ns_render_edit_and_drive_on_a_builtin_street_run(builtin_run: Path, tmp
     written = {p.relative_to(split).parts[0] for p in split.rglob("*.*")}  # <output>/<camera>/<image>
     assert {"rgb", "gt-rgb", "depth", "instances"} <= written, written
 
-    edit_cli.main(["--load-config", str(builtin_run), "--output-dir", str(tmp_path / "edited"), "--remove", "1"])
+    edit.main(["--load-config", str(builtin_run), "--output-dir", str(tmp_path / "edited"), "--remove", "1"])
     edited = tmp_path / "edited" / "config.yml"
     _, pipeline, _, _ = eval_setup(edited, test_mode="test")  # as ns-eval and ns-viewer load it
     assert 1 not in pipeline.model.scene_model.trajectories.instance_ids.tolist()
     assert pipeline.datamanager.get_datapath().is_dir()  # what ns-viewer opens
 
-    drive_video.main(["--load-config", str(edited), "--output", str(tmp_path / "frames"), "--max-frames", "2"])
+    render_drive.main(["--load-config", str(edited), "--output", str(tmp_path / "frames"), "--max-frames", "2"])
     assert len(list((tmp_path / "frames").glob("frame_*.png"))) == 2

@@ -150,16 +150,16 @@ def _idsplat(module: str, *args: str):
     def command(config: Path, out: Path) -> None:
         import importlib
 
-        importlib.import_module(f"idsplat_ns.nerfstudio.{module}").main(["--load-config", str(config), *args, str(out)])
+        importlib.import_module(f"idsplat_ns.cli.{module}").main(["--load-config", str(config), *args, str(out)])
     return command
 
 
 COMMANDS = {
     "ns-eval": _ns_eval,
     "ns-render": _ns_render,
-    "idsplat-edit": _idsplat("edit_cli", "--remove", "1", "--output-dir"),
-    "idsplat-export": _idsplat("export_cli", "--output-dir"),
-    "idsplat-render-drive": _idsplat("drive_video", "--max-frames", "1", "--output"),
+    "idsplat-edit": _idsplat("edit", "--remove", "1", "--output-dir"),
+    "idsplat-export": _idsplat("export", "--output-dir"),
+    "idsplat-render-drive": _idsplat("render_drive", "--max-frames", "1", "--output"),
 }
 OURS = ("idsplat-edit", "idsplat-export", "idsplat-render-drive")
 NEEDS_DATA = ("ns-eval", "ns-render", "idsplat-render-drive")

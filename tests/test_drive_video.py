@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from idsplat_ns.errors import IDSplatError
-from idsplat_ns.nerfstudio.drive_video import drive_order, recorded_frame_rate, shifted_camera_to_world
+from idsplat_ns.cli.render_drive import drive_order, recorded_frame_rate, shifted_camera_to_world
 
 
 def test_shift_moves_the_camera_in_its_own_frame():
@@ -46,7 +46,7 @@ def test_video_holds_the_renders_and_the_recorded_images(pipeline, tmp_path):
     import cv2
     import torch
 
-    from idsplat_ns.nerfstudio.drive_video import render_drive, write_frames
+    from idsplat_ns.cli.render_drive import render_drive, write_frames
 
     camera = pipeline.model.camera_names[0]
     frames, rate = render_drive(pipeline, camera, (0.0, 0.0), 4, True, 3)
@@ -76,7 +76,7 @@ def test_video_holds_the_renders_and_the_recorded_images(pipeline, tmp_path):
 def test_shifted_drive_as_png_frames(pipeline, tmp_path):
     from PIL import Image
 
-    from idsplat_ns.nerfstudio.drive_video import render_drive, write_frames
+    from idsplat_ns.cli.render_drive import render_drive, write_frames
 
     base, _ = render_drive(pipeline, None, (0.0, 0.0), 4, False, 1)
     moved, _ = render_drive(pipeline, None, (2.0, 0.0), 4, False, 1)
@@ -86,7 +86,7 @@ def test_shifted_drive_as_png_frames(pipeline, tmp_path):
 
 
 def test_bad_options_are_one_line(pipeline, tmp_path, capsys):
-    from idsplat_ns.nerfstudio.drive_video import main, render_drive
+    from idsplat_ns.cli.render_drive import main, render_drive
 
     with pytest.raises(IDSplatError, match="--camera nope: not a camera of this run"):
         render_drive(pipeline, "nope", (0.0, 0.0), 4, False, 1)

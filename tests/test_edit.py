@@ -208,7 +208,7 @@ def test_unknown_id_is_an_error():
 def test_cli_writes_a_run_that_loads_like_any_run(run_config, pipeline, tmp_path, capsys):
     from nerfstudio.utils.eval_utils import eval_setup
 
-    from idsplat_ns.nerfstudio.edit_cli import main
+    from idsplat_ns.cli.edit import main
 
     i, iid = biggest_instance(pipeline)
     out = tmp_path / "edited"
@@ -258,7 +258,7 @@ def test_removing_every_instance_leaves_the_static_scene(pipeline):
                                   ["--retime", "1", "0.5", "0"], ["--retime", "1", "nan"]])
 def test_non_finite_edits_are_refused_before_anything_is_read_or_written(tmp_path, edit):
     from idsplat_ns.errors import IDSplatError
-    from idsplat_ns.nerfstudio.edit_cli import parse_args, run
+    from idsplat_ns.cli.edit import parse_args, run
 
     args = parse_args(["--load-config", str(tmp_path / "no-such-run" / "config.yml"), "--output-dir",
                        str(tmp_path / "edited"), *edit])  # fmt: skip

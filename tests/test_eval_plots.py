@@ -50,7 +50,7 @@ def test_eval_writes_the_plot_and_the_report_lists_it(pipeline, tmp_path, monkey
     assert any(o["dpsnr"] is not None for o in objects)
     assert result["objects_frames"] == sum(o["frames"] for o in objects if o["class"] == "vehicle")
     (tmp_path / "eval.json").write_text(json.dumps({"experiment_name": "tiny", "results": result}))
-    res = subprocess.run([sys.executable, "-m", "idsplat_ns.nerfstudio.report", str(tmp_path / "eval.json")],
+    res = subprocess.run([sys.executable, "-m", "idsplat_ns.cli.report", str(tmp_path / "eval.json")],
                          capture_output=True, text=True, timeout=120)
     listed = res.stdout.replace("\n", "")
     assert res.returncode == 0 and all(name in listed for name in names)

@@ -16,7 +16,7 @@ from _tiny_run import tiny_run  # noqa: E402
 
 from idsplat_ns.model.editing import SceneTensors  # noqa: E402
 from idsplat_ns.model.ply_export import SH_C0  # noqa: E402
-from idsplat_ns.nerfstudio.run_files import SCENE_PREFIX, load_run  # noqa: E402
+from idsplat_ns.runs.run_folder import SCENE_PREFIX, load_run  # noqa: E402
 
 ATTRIBUTES = (["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"] + [f"f_rest_{i}" for i in range(45)]
               + ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"])
@@ -24,7 +24,7 @@ ATTRIBUTES = (["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"] + 
 
 @pytest.fixture(scope="module")
 def exported(tiny_street, tmp_path_factory):
-    from idsplat_ns.nerfstudio.export_cli import export, parse_args
+    from idsplat_ns.cli.export import export, parse_args
 
     config = tiny_run(tiny_street, tmp_path_factory)
     scene = SceneTensors.from_state_dict(load_run(config).pipeline_state, SCENE_PREFIX)
@@ -96,7 +96,7 @@ def test_scene_at_a_time_places_present_instances(exported):
 
 
 def test_sh_rest_can_be_left_out(tiny_street, tmp_path_factory, tmp_path):
-    from idsplat_ns.nerfstudio.export_cli import export, parse_args
+    from idsplat_ns.cli.export import export, parse_args
 
     config = tiny_run(tiny_street, tmp_path_factory)
     export(parse_args(["--load-config", str(config), "--output-dir", str(tmp_path), "--sh-rest", "0"]))

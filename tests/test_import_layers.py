@@ -1,5 +1,5 @@
 """The house's layers as a contract (``[tool.importlinter]`` in pyproject.toml): errors, atomic,
-_compat < data, render < instances < model < eval < runs < the nerfstudio adapter and command
+_compat < data, render < instances < model < eval < runs < the nerfstudio adapter < command
 lines, batch < method_configs, and no import cycle in any package. import-linter reads every
 import statement, those inside functions and under TYPE_CHECKING included."""
 

@@ -89,7 +89,7 @@ def test_waymo_range_images_give_drop_labels_and_the_metric(tmp_path):
 
 def test_report_prints_present_metrics_and_one_line_per_absent_one(tmp_path, capsys):
     from idsplat_ns.eval.lpips import LPIPS_NOTE
-    from idsplat_ns.nerfstudio.report import main
+    from idsplat_ns.cli.report import main
 
     results = {"psnr": 25.0, "ssim": 0.8, "dpsnr": 24.0, "dpsnr_pedestrian": 21.5, "dpsnr_pedestrian_num_images": 3,
                "num_images": 6, "lidar_chamfer": 0.3, "lidar_num_sweeps": 2,

@@ -60,19 +60,19 @@ def _idsplat_synth(args):
 
 
 def _idsplat_preprocess(args):
-    from idsplat_ns.nerfstudio.preprocess_cli import parse_args
+    from idsplat_ns.cli.preprocess import parse_args
 
     return parse_args(args)
 
 
 def _idsplat_edit(args):
-    from idsplat_ns.nerfstudio.edit_cli import parse_args
+    from idsplat_ns.cli.edit import parse_args
 
     return parse_args(args)
 
 
 def _idsplat_export(args):
-    from idsplat_ns.nerfstudio.export_cli import parse_args
+    from idsplat_ns.cli.export import parse_args
 
     return parse_args(args)
 
@@ -86,7 +86,7 @@ def _idsplat_batch(args):
 
 
 def _idsplat_render_drive(args):
-    from idsplat_ns.nerfstudio.drive_video import parse_args
+    from idsplat_ns.cli.render_drive import parse_args
 
     return parse_args(args)
 

@@ -131,7 +131,7 @@ def test_preprocess_and_ns_train_share_one_cache(tiny_street, tmp_path, capsys):
     pytest.importorskip("nerfstudio")
     from idsplat_ns.nerfstudio.builtin_scene import instance_cache_dir
     from idsplat_ns.nerfstudio.dataparser import PandaSetDataParserConfig
-    from idsplat_ns.nerfstudio.preprocess_cli import PreprocessArgs, preprocess
+    from idsplat_ns.cli.preprocess import PreprocessArgs, preprocess
 
     export = tmp_path / "t.json"
     tracks = preprocess(PreprocessArgs(data=tiny_street, export=export))

@@ -207,7 +207,7 @@ def test_triton_is_not_loaded_by_cpu_rendering():
 
 
 def test_lidar_compositor_option_is_checked_against_the_training_device():
-    from idsplat_ns.nerfstudio.settings_checks import check_lidar_compositor
+    from idsplat_ns.runs.settings_checks import check_lidar_compositor
 
     with pytest.raises(IDSplatError, match="--pipeline.model.lidar.compositor triton needs a CUDA device"):
         check_lidar_compositor("triton", "cpu")

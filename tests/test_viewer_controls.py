@@ -243,8 +243,8 @@ def run_config(tiny_street, tmp_path_factory):
 
 def test_saving_hidden_instances_writes_the_run_idsplat_edit_writes(run_config, tmp_path):
     from idsplat_ns.errors import IDSplatError
-    from idsplat_ns.nerfstudio.edit_cli import main as edit_main
-    from idsplat_ns.nerfstudio.run_files import SCENE_PREFIX, load_run
+    from idsplat_ns.cli.edit import main as edit_main
+    from idsplat_ns.runs.run_folder import SCENE_PREFIX, load_run
     from idsplat_ns.nerfstudio.viewer_controls import save_hidden_as_run
 
     source = load_run(run_config)

@@ -32,3 +32,12 @@ def ensure_loadable() -> bool:
         return False
     _HANDLE = ctypes.CDLL(str(candidates[0]), mode=ctypes.RTLD_GLOBAL)
     return True
+
+
+def import_open3d():
+    """open3d, imported on first use (seconds: cached runs never need it), after this guard (a
+    no-op where the system has libusb), in case the start-up hook is not installed."""
+    ensure_loadable()
+    import open3d
+
+    return open3d

@@ -69,7 +69,7 @@ def install() -> None:
 
 def write_pth(site_packages: str | None = None) -> str:
     """Write the ``.pth`` file that installs the hook at start-up into ``site_packages``; returns its path."""
-    import sysconfig
+    import sysconfig  # this module runs at every Python start: only what install() needs is imported at the top
     from pathlib import Path
 
     from idsplat_ns.atomic import atomic_path

@@ -19,12 +19,16 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Optional
 
+from idsplat_ns.batch.commands import UserOptions, split_user_options, total_steps
+from idsplat_ns.batch.layout import read_eval
+from idsplat_ns.batch.sequences import load_sequences
 from idsplat_ns.errors import IDSplatError
 
-if TYPE_CHECKING:  # the modules import rich and Ray: only when a batch runs
+# torch (plan), matplotlib (aggregate) and Ray (runner, ray_cluster) take 1.5-4 s to import on 2
+# cores: they are imported where a batch runs, so that --help and option errors answer at once.
+if TYPE_CHECKING:
     from rich.console import Console
 
-    from idsplat_ns.batch.commands import UserOptions
     from idsplat_ns.batch.plan import SequencePlan
     from idsplat_ns.batch.runner import Outcome, StepResources
 
@@ -76,8 +80,6 @@ def _check_args(args: argparse.Namespace) -> None:
 def parse_args(argv: list[str]) -> tuple[argparse.Namespace, UserOptions]:
     """The batch's own options (checked) and the pass-through ns-train options, split at the
     dataparser subcommand; one-line :class:`IDSplatError` for an option the batch owns."""
-    from idsplat_ns.batch.commands import split_user_options
-
     args, rest = _parser().parse_known_args(argv)
     if rest[:1] == ["--"]:
         rest = rest[1:]
@@ -89,10 +91,8 @@ def run_batch(argv: list[str]) -> int:
     """Parse ``argv``, run the batch, write and print the table; returns the number of failures."""
     from rich.console import Console
 
-    from idsplat_ns.batch.commands import total_steps
     from idsplat_ns.batch.plan import plan_sequence
     from idsplat_ns.batch.runner import Outcome, Reporter, StepResources
-    from idsplat_ns.batch.sequences import load_sequences
 
     args, user = parse_args(argv)
     sequences = load_sequences(args.sequences, args.data_root)
@@ -153,7 +153,6 @@ def _report(plans: list[SequencePlan], outcome: Outcome, method: str, output_dir
     """Write and print the table of every evaluated sequence of the list, list the failures;
     returns the number of failures."""
     from idsplat_ns.batch import aggregate
-    from idsplat_ns.batch.layout import read_eval
 
     rows = [aggregate.sequence_row(p.sequence.name, p.sequence.protocol, r) for p in plans
             if (r := read_eval(p.paths)) is not None]

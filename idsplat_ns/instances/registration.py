@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from idsplat_ns._compat.libusb import import_open3d
 from idsplat_ns.data.geometry import make_pose, so3_exp
 
 
@@ -249,20 +250,9 @@ def registration_fitness(
     return float(np.mean(inlier))
 
 
-def _open3d():
-    """open3d, imported on first use (seconds: cached runs never need it), after the project's
-    libusb guard (see :mod:`idsplat_ns._compat.libusb`)."""
-    from idsplat_ns._compat.libusb import ensure_loadable
-
-    ensure_loadable()
-    import open3d
-
-    return open3d
-
-
 def _cloud(points: np.ndarray):  # [N, 3] -> open3d PointCloud of the points about their mean
     # Centred: open3d's covariances are one-pass (E[xx] - E[x]E[x]), which cancels far from the origin.
-    o3d = _open3d()
+    o3d = import_open3d()
     points = np.asarray(points, np.float64)
     return o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points - points.mean(0)))
 
@@ -271,7 +261,7 @@ def _local_pca(points: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:  # 
     """Principal axes of each point's k nearest neighbours (the point included): eigenvalues
     (descending, of the covariance divided by the neighbour count) and axes (rows)."""
     cloud = _cloud(points)
-    cloud.estimate_covariances(_open3d().geometry.KDTreeSearchParamKNN(k))
+    cloud.estimate_covariances(import_open3d().geometry.KDTreeSearchParamKNN(k))
     eig, axes = np.linalg.eigh(np.asarray(cloud.covariances))  # ascending, axes as columns
     return eig[:, ::-1], np.swapaxes(axes[:, :, ::-1], 1, 2)
 
@@ -279,7 +269,7 @@ def _local_pca(points: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:  # 
 def estimate_normals(points: np.ndarray, k: int = 12) -> np.ndarray:  # points: [N, 3] -> [N, 3]
     """Unit normals (unsigned) from the smallest principal axis of each point's k nearest neighbours."""
     cloud = _cloud(points)
-    cloud.estimate_normals(_open3d().geometry.KDTreeSearchParamKNN(k))
+    cloud.estimate_normals(import_open3d().geometry.KDTreeSearchParamKNN(k))
     return np.asarray(cloud.normals)
 
 

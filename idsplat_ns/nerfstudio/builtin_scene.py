@@ -5,6 +5,8 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from idsplat_ns.data.synthetic import generate_sequence, get_preset, is_current, sequence_name
+
 
 def cache_root() -> Path:
     """Where generated scenes are kept: ``$IDSPLAT_CACHE`` or ``~/.cache/idsplat_ns``."""
@@ -19,8 +21,6 @@ def instance_cache_dir(scene_name: str) -> Path:
 
 def builtin_street(preset: str = "small", seed: int = 0) -> Path:
     """Path to the built-in street of ``preset``/``seed``, generating it the first time."""
-    from idsplat_ns.data.synthetic import generate_sequence, get_preset, is_current, sequence_name
-
     parent = cache_root() / "synthetic"
     if is_current(parent, preset, seed):
         return parent / sequence_name(get_preset(preset), seed)

@@ -29,7 +29,7 @@ from nerfstudio.engine.trainer import Trainer
 from nerfstudio.utils.rich_utils import CONSOLE
 
 from idsplat_ns.atomic import TMP_MARK, atomic_path
-from idsplat_ns.nerfstudio.random_state import capture_random_state, restore_random_state
+from idsplat_ns.runs.random_state import capture_random_state, restore_random_state
 from idsplat_ns.runs.checkpoints import (
     LoadedCheckpoint,
     keep_newest,

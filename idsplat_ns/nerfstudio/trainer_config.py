@@ -4,7 +4,7 @@
 before it reads any data, and that is the first thing it does with the parsed options. So this
 override is the earliest point where the project sees the final settings: it checks every numeric
 option's range and that the camera backend can run on the training device (one line naming the
-option, :mod:`idsplat_ns.nerfstudio.settings_checks`) and
+option, :mod:`idsplat_ns.runs.settings_checks`) and
 registers the new run folder so that a run failing before its first checkpoint leaves nothing
 behind (:func:`idsplat_ns.errors.register_run_dir`).
 """
@@ -14,17 +14,15 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Type
 
-from nerfstudio.engine.trainer import TrainerConfig
-
 from idsplat_ns.atomic import first_created
 from idsplat_ns.errors import register_run_dir
-from idsplat_ns.nerfstudio.config_defaults import FillsMissingFieldsOnLoad
-from idsplat_ns.nerfstudio.settings_checks import check_camera_backend, check_lidar_compositor, validate_settings
 from idsplat_ns.nerfstudio.trainer import IDSplatTrainer
+from idsplat_ns.runs.run_config import IDSplatRunConfig
+from idsplat_ns.runs.settings_checks import check_camera_backend, check_lidar_compositor, validate_settings
 
 
 @dataclass
-class IDSplatTrainerConfig(FillsMissingFieldsOnLoad, TrainerConfig):
+class IDSplatTrainerConfig(IDSplatRunConfig):
     """nerfstudio's TrainerConfig whose ``save_config`` validates the settings first, and whose
     ``config.yml`` from an older version loads with the defaults of the settings added since."""
 

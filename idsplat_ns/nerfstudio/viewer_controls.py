@@ -29,10 +29,10 @@ from torch import Tensor
 from idsplat_ns.errors import IDSplatError
 from idsplat_ns.model.editing import EditError, SceneTensors
 from idsplat_ns.model.instance_visibility import highlight
-from idsplat_ns.nerfstudio.edit_cli import apply_edits
-from idsplat_ns.nerfstudio.run_files import SCENE_PREFIX, TrainedRun, read_run_config, write_run
+from idsplat_ns.runs.run_folder import SCENE_PREFIX, TrainedRun, read_run_config, write_run
 from idsplat_ns.nerfstudio.viewer_scene import StartView, TrajectoryLayer
 from idsplat_ns.runs.checkpoints import latest_complete
+from idsplat_ns.runs.edits import apply_edits
 
 if TYPE_CHECKING:
     from nerfstudio.viewer.viewer import Viewer
@@ -57,7 +57,7 @@ def config_candidates(viewer: Viewer) -> List[Path]:
 
 
 def read_config(config_path: str | Path):
-    """The TrainerConfig of a run's config.yml (:func:`~idsplat_ns.nerfstudio.run_files.read_run_config`);
+    """The TrainerConfig of a run's config.yml (:func:`~idsplat_ns.runs.run_folder.read_run_config`);
     one line naming the file when it cannot be read."""
     path = Path(str(config_path).strip()).expanduser()
     if not str(config_path).strip() or not path.is_file():

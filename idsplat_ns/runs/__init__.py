@@ -1,5 +1,8 @@
-"""Run folders: a trained run's checkpoints and what commands may rely on in them.
+"""Run folders: a trained run's config and checkpoints, what commands may rely on in them, the
+settings checks made before a run is written, the random state a resumed run restores, and the
+edits of a trained scene.
 
-Sits with the nerfstudio adapter and the command lines (layer 6): it may import ``errors``,
-``atomic`` and torch, never ``method_configs``.
+Layer: above ``eval``, below the nerfstudio adapter and the command lines. It may import
+``errors``, ``atomic``, ``data``, ``render``, ``model``, ``eval`` and nerfstudio's own
+``TrainerConfig``; never ``idsplat_ns.nerfstudio``, ``cli``, ``batch`` or ``method_configs``.
 """

@@ -7,7 +7,7 @@ file damaged later (a copy cut short, a full disk) still leaves the previous one
 resume, ``idsplat-edit``/``-export``, the viewer, the batch): the newest checkpoint that loads, each
 newer one that does not named in one line. nerfstudio's own loader (``ns-eval``, ``ns-render``,
 ``ns-viewer``) takes the newest name whatever it holds: :func:`checkpoint_problem` is the one line
-that its failure is translated into (:mod:`idsplat_ns.nerfstudio.command_failures`).
+that its failure is translated into (:mod:`idsplat_ns.cli.command_failures`).
 """
 
 from __future__ import annotations

@@ -51,6 +51,8 @@ def load_segment(
         raise IDSplatError(f"start={start}, end={end}: need 0 <= start < end (end exclusive, None for the last frame)")
     path = Path(path)
     lidar_names = lidars if load_lidar else []
+    # The readers are imported for the format at hand: importing this package (for its splits)
+    # must not build the protobuf classes or load pyarrow.
     if path.is_dir():
         from idsplat_ns.data.waymo.v2 import read_v2
 

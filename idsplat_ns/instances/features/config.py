@@ -8,9 +8,10 @@ from typing import Literal
 from idsplat_ns.data.scene import Scene
 from idsplat_ns.errors import IDSplatError
 from idsplat_ns.instances.features.base import PointFeatureExtractor
-from idsplat_ns.instances.features.daisy import DaisyConfig
-from idsplat_ns.instances.features.dinov3_onnx import Dinov3Config
-from idsplat_ns.instances.features.fpfh import FpfhConfig
+from idsplat_ns.instances.features.daisy import DaisyConfig, DaisyFeatures
+from idsplat_ns.instances.features.dinov3_onnx import Dinov3Config, Dinov3OnnxFeatures
+from idsplat_ns.instances.features.fpfh import FpfhConfig, FpfhFeatures
+from idsplat_ns.instances.features.rgb import RgbFeatures
 from idsplat_ns.instances.options import cli_option
 
 FeatureKind = Literal["auto", "dinov3", "rgb", "daisy", "fpfh"]
@@ -48,19 +49,11 @@ def resolve_feature_kind(config: FeatureConfig, scene: Scene) -> str:
 def make_feature_extractor(kind: str, config: FeatureConfig) -> PointFeatureExtractor:
     """Build the extractor named ``kind`` (already resolved, not ``auto``)."""
     if kind == "dinov3":
-        from idsplat_ns.instances.features.dinov3_onnx import Dinov3OnnxFeatures
-
         return Dinov3OnnxFeatures(config.dinov3)
     if kind == "rgb":
-        from idsplat_ns.instances.features.rgb import RgbFeatures
-
         return RgbFeatures()
     if kind == "daisy":
-        from idsplat_ns.instances.features.daisy import DaisyFeatures
-
         return DaisyFeatures(config.daisy)
     if kind == "fpfh":
-        from idsplat_ns.instances.features.fpfh import FpfhFeatures
-
         return FpfhFeatures(config.fpfh)
     raise IDSplatError(f"{cli_option('features.kind')} {kind!r} is unknown; use auto, dinov3, rgb, daisy or fpfh")

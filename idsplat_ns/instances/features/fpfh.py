@@ -8,21 +8,11 @@ from dataclasses import dataclass
 import numpy as np
 from tqdm import tqdm
 
-from idsplat_ns.data.scene import Scene
+from idsplat_ns._compat.libusb import import_open3d
 from idsplat_ns.data.images import load_rgb
+from idsplat_ns.data.scene import Scene
 from idsplat_ns.instances.features.base import PointFeatureExtractor, PointFeatures, sample_colors
 from idsplat_ns.instances.lifting import LiftedInstances
-
-
-def import_open3d():
-    """Import open3d, first applying the project's libusb guard (a no-op where the system has
-    libusb; see :mod:`idsplat_ns._compat.libusb`), in case the start-up hook is not installed."""
-    from idsplat_ns._compat.libusb import ensure_loadable
-
-    ensure_loadable()
-    import open3d
-
-    return open3d
 
 
 @dataclass(frozen=True)

@@ -7,10 +7,11 @@ from typing import Literal
 
 from idsplat_ns.errors import IDSplatError
 from idsplat_ns.instances.masks.base import MaskSource
-from idsplat_ns.instances.masks.gt_boxes import GtBoxMasksConfig
-from idsplat_ns.instances.masks.grounded_sam2_onnx import GroundedSam2Config
+from idsplat_ns.instances.masks.grounded_sam2_onnx import GroundedSam2Config, GroundedSam2OnnxMasks
+from idsplat_ns.instances.masks.gt_boxes import GtBoxMaskSource, GtBoxMasksConfig
+from idsplat_ns.instances.masks.lidar_motion import LidarMotionMaskSource
+from idsplat_ns.instances.masks.precomputed import PrecomputedMaskSource, PrecomputedMasksConfig
 from idsplat_ns.instances.motion_tracks import LidarMotionConfig
-from idsplat_ns.instances.masks.precomputed import PrecomputedMasksConfig
 from idsplat_ns.instances.options import cli_option
 
 MaskKind = Literal["auto", "grounded_sam2", "precomputed", "lidar-motion", "ground-truth", "gt_boxes"]
@@ -51,20 +52,12 @@ def resolve_mask_kind(config: MaskConfig) -> str:
 def make_mask_source(kind: str, config: MaskConfig) -> MaskSource:
     """Build the source named ``kind`` (already resolved)."""
     if kind == "grounded_sam2":
-        from idsplat_ns.instances.masks.grounded_sam2_onnx import GroundedSam2OnnxMasks
-
         return GroundedSam2OnnxMasks(config.grounded_sam2)
     if kind == "precomputed":
-        from idsplat_ns.instances.masks.precomputed import PrecomputedMaskSource
-
         return PrecomputedMaskSource(config.precomputed)
     if kind == "gt_boxes":
-        from idsplat_ns.instances.masks.gt_boxes import GtBoxMaskSource
-
         return GtBoxMaskSource(config.gt_boxes)
     if kind == "lidar-motion":
-        from idsplat_ns.instances.masks.lidar_motion import LidarMotionMaskSource
-
         return LidarMotionMaskSource(config.lidar_motion)
     if kind == "ground-truth":
         raise IDSplatError(f"{cli_option('masks.kind')} ground-truth: resolve it on the scene first (instances.modes.ground_truth_masks)")

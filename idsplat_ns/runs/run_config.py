@@ -1,4 +1,6 @@
-"""Run folders written by an older version keep loading: a ``config.yml`` lacks the settings
+"""The root config of an IDSplat run as its folder holds it (``config.yml``).
+
+Run folders written by an older version keep loading: a ``config.yml`` lacks the settings
 added since, and PyYAML rebuilds dataclasses without running ``__init__``, so a missing field
 would be an ``AttributeError`` deep inside ``ns-eval`` or ``ns-viewer``. The root config fills
 every such field of the project's own configs with its default when it is loaded."""
@@ -7,6 +9,8 @@ from __future__ import annotations
 
 import dataclasses
 from typing import Any
+
+from nerfstudio.engine.trainer import TrainerConfig
 
 OWN_MODULES = ("idsplat_ns.", "method_configs.")
 
@@ -58,3 +62,10 @@ class FillsMissingFieldsOnLoad:
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state)
         fill_missing_fields(self)
+
+
+@dataclasses.dataclass
+class IDSplatRunConfig(FillsMissingFieldsOnLoad, TrainerConfig):
+    """What a run folder's reader accepts as an IDSplat run (:func:`~idsplat_ns.runs.run_folder.read_run_config`):
+    nerfstudio's TrainerConfig, filled on load. The adapter's ``IDSplatTrainerConfig`` derives from
+    it and adds the trainer and the checks made before anything is written."""

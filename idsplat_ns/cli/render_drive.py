@@ -16,8 +16,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from idsplat_ns._compat.ffmpeg import ensure_ffmpeg_on_path
 from idsplat_ns.atomic import check_writable
+from idsplat_ns.cli.command_failures import explain_checkpoint_load
 from idsplat_ns.errors import IDSplatError, run_cli
+from idsplat_ns.runs.run_folder import check_run
 
 
 def shifted_camera_to_world(
@@ -127,8 +130,6 @@ def write_frames(frames: list[np.ndarray], output: Path, fps: float) -> Path:
     if output.suffix.lower() == ".mp4":
         import mediapy
 
-        from idsplat_ns._compat.ffmpeg import ensure_ffmpeg_on_path
-
         ensure_ffmpeg_on_path()
         output.parent.mkdir(parents=True, exist_ok=True)
         # H.264 wants even sizes: pad by one black row/column where needed.
@@ -151,9 +152,6 @@ def run(args: argparse.Namespace) -> Path:
     from nerfstudio.utils.eval_utils import eval_setup
 
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
-    from idsplat_ns.nerfstudio.command_failures import explain_checkpoint_load
-    from idsplat_ns.nerfstudio.run_files import check_run
 
     check_run(args.load_config)  # another method's run, no checkpoint: one line before the pipeline is built
     try:

@@ -10,7 +10,6 @@ is in :mod:`idsplat_ns.model.editing`; instance IDs are those of the checkpoint,
 from __future__ import annotations
 
 import argparse
-import math
 from pathlib import Path
 
 from rich.console import Console
@@ -18,6 +17,10 @@ from rich.table import Table
 
 from idsplat_ns.atomic import check_writable
 from idsplat_ns.errors import IDSplatError, run_cli
+from idsplat_ns.model.editing import EditError, SceneTensors
+from idsplat_ns.model.instance_summary import summarise_instances
+from idsplat_ns.runs.edits import apply_edits, check_edit_values
+from idsplat_ns.runs.run_folder import SCENE_PREFIX, load_run, write_run
 
 EPILOG = """examples:
   idsplat-edit --load-config outputs/x/idsplat-fast/T/config.yml --list
@@ -52,53 +55,6 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
-def _instance_id(value: float, option: str) -> int:
-    if value != int(value) or value < 1:
-        raise IDSplatError(f"{option}: instance ID {value:g} is not a positive integer; see --list")
-    return int(value)
-
-
-def check_edit_values(args: argparse.Namespace) -> None:
-    """Every number of ``--move``, ``--duplicate`` and ``--retime`` finite (and a re-timing's speed
-    positive), checked before the run is read or anything written: a NaN offset would be written
-    into the trajectories."""
-    for option, specs in (("--move", args.move), ("--duplicate", args.duplicate), ("--retime", args.retime)):
-        for spec in specs:
-            if not all(math.isfinite(v) for v in spec):
-                raise IDSplatError(f"{option} {' '.join(f'{v:g}' for v in spec)}: every value must be a finite number")
-    for spec in args.retime:
-        if len(spec) == 3 and spec[2] <= 0:
-            raise IDSplatError(f"--retime {' '.join(f'{v:g}' for v in spec)}: SPEED must be positive")
-
-
-def apply_edits(scene, args: argparse.Namespace) -> list[str]:
-    """Apply the command line's edits to ``scene`` (a SceneTensors); returns one line per edit."""
-    from idsplat_ns.model.editing import EditError
-
-    done: list[str] = []
-    try:
-        if args.remove:
-            scene.remove([_instance_id(i, "--remove") for i in args.remove])
-            done.append(f"removed {' '.join(map(str, args.remove))}")
-        for spec in args.retime:
-            if len(spec) not in (2, 3):
-                raise IDSplatError(f"--retime {' '.join(f'{v:g}' for v in spec)}: give ID SHIFT_S [SPEED]")
-            iid, shift, speed = _instance_id(spec[0], "--retime"), spec[1], spec[2] if len(spec) == 3 else 1.0
-            scene.retime(iid, shift, speed)
-            done.append(f"retimed {iid}: {shift:+g} s, x{speed:g}")
-        for iid, dx, dy, dz, dyaw in args.move:
-            iid = _instance_id(iid, "--move")
-            scene.move(iid, (dx, dy, dz), math.radians(dyaw), args.frame)
-            done.append(f"moved {iid}: ({dx:g}, {dy:g}, {dz:g}) m, {dyaw:g} deg, {args.frame} frame")
-        for iid, dx, dy, dz in args.duplicate:
-            iid = _instance_id(iid, "--duplicate")
-            new = scene.duplicate(iid, (dx, dy, dz), 0.0, args.frame)
-            done.append(f"duplicated {iid} as {new}: ({dx:g}, {dy:g}, {dz:g}) m, {args.frame} frame")
-    except EditError as err:
-        raise IDSplatError(f"{args.load_config}: {err}") from None
-    return done
-
-
 def instance_points(config) -> dict[int, tuple[int, str, str]]:
     """``{instance_id: (lidar points, label, class)}`` of the run's instance decomposition, rebuilt from its
     data as ns-eval does (stage caches make it cheap the second time). IDs that the data does not
@@ -111,8 +67,6 @@ def instance_points(config) -> dict[int, tuple[int, str, str]]:
 
 
 def print_instances(scene, console: Console, points: dict[int, tuple[int, str, str]] | None = None) -> None:
-    from idsplat_ns.model.instance_summary import summarise_instances
-
     rows = summarise_instances(scene)
     static = int((scene.gaussians["instance_ids"] == 0).sum())
     table = Table(title=f"{len(rows)} instances, {static} static Gaussians")
@@ -133,9 +87,6 @@ def print_instances(scene, console: Console, points: dict[int, tuple[int, str, s
 
 
 def run(args: argparse.Namespace) -> Path | None:
-    from idsplat_ns.model.editing import EditError, SceneTensors
-    from idsplat_ns.nerfstudio.run_files import SCENE_PREFIX, load_run, write_run
-
     edits_given = bool(args.remove or args.move or args.retime or args.duplicate)
     if not edits_given and not args.list:
         raise IDSplatError("nothing to do: give --list or an edit (--remove, --move, --retime, --duplicate)")

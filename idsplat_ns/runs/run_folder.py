@@ -25,8 +25,8 @@ from nerfstudio.engine.trainer import TrainerConfig
 
 from idsplat_ns.atomic import atomic_path, removed_on_failure
 from idsplat_ns.errors import IDSplatError
-from idsplat_ns.nerfstudio.trainer_config import IDSplatTrainerConfig
 from idsplat_ns.runs.checkpoints import folder_problem, load_latest
+from idsplat_ns.runs.run_config import IDSplatRunConfig
 
 SCENE_PREFIX = "_model.scene_model."  # state-dict prefix of the SceneModel inside a pipeline
 
@@ -59,7 +59,7 @@ def read_run_config(config_path: Path):
         raise IDSplatError(f"--load-config {config_path}: not a readable config ({type(err).__name__}); give a run's config.yml") from None
     if not isinstance(config, TrainerConfig):
         raise IDSplatError(f"--load-config {config_path}: not a nerfstudio run's config; give the config.yml that ns-train wrote")
-    if not isinstance(config, IDSplatTrainerConfig):
+    if not isinstance(config, IDSplatRunConfig):
         raise IDSplatError(f"--load-config {config_path}: a run of method {getattr(config, 'method_name', '?')!r}, "
                            "not of IDSplat; give the config.yml of an idsplat run")
     return config
@@ -84,7 +84,7 @@ def check_run(config_path: Path):
     """Before a command builds the run's pipeline through nerfstudio's loader (which reads the
     folder the config names): the config is an IDSplat run's and its checkpoint folder holds
     checkpoints and nothing else (read without loading one; a checkpoint that then does not load
-    is explained by :func:`~idsplat_ns.nerfstudio.command_failures.explain_checkpoint_load`).
+    is explained by :func:`~idsplat_ns.cli.command_failures.explain_checkpoint_load`).
     Returns the config."""
     config = read_run_config(config_path)
     problem = folder_problem(Path(config.get_checkpoint_dir()), strays=True)

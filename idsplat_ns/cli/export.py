@@ -23,6 +23,10 @@ from rich.console import Console
 
 from idsplat_ns.atomic import check_writable, removed_on_failure
 from idsplat_ns.errors import IDSplatError, run_cli
+from idsplat_ns.model.editing import SceneTensors
+from idsplat_ns.model.ply_export import scene_at_time, select, splat_records, write_ply
+from idsplat_ns.model.trajectories import default_span_margin
+from idsplat_ns.runs.run_folder import SCENE_PREFIX, load_run
 
 COLOUR_NOTE = ("f_dc holds the base colour (features_rgb) as a degree-0 SH; the model's screen-space "
                "decoder correction is not exportable per Gaussian, f_rest is zero")
@@ -54,8 +58,6 @@ def _trajectory_record(scene, z: int, ply: str, margin: float) -> dict:
 
 
 def export(args: argparse.Namespace) -> dict:
-    from idsplat_ns.model.editing import SceneTensors
-    from idsplat_ns.nerfstudio.run_files import SCENE_PREFIX, load_run
 
     if args.sh_rest < 0:
         raise IDSplatError(f"--sh-rest {args.sh_rest}: must be 0 or more")
@@ -74,8 +76,6 @@ def export(args: argparse.Namespace) -> dict:
 def _write(scene, run, out: Path, args: argparse.Namespace) -> tuple[dict, int]:
     """The .ply files and trajectories.json of ``scene`` in ``out``; returns the JSON record and the
     number of static Gaussians."""
-    from idsplat_ns.model.ply_export import scene_at_time, select, splat_records, write_ply
-    from idsplat_ns.model.trajectories import default_span_margin
 
     g, ids = scene.gaussians, scene.gaussians["instance_ids"]
     write_ply(out / "static.ply", splat_records(select(g, ids == 0), args.sh_rest))

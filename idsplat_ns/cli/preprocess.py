@@ -20,8 +20,14 @@ from pathlib import Path
 from typing import Literal, Optional
 
 from idsplat_ns.atomic import check_writable
+from idsplat_ns.data.scene import note_empty_sweeps
+from idsplat_ns.data.split import split_frames
 from idsplat_ns.errors import run_cli
+from idsplat_ns.instances.modes import instance_tracks_for_mode
 from idsplat_ns.instances.runner import PreprocessConfig
+from idsplat_ns.instances.tracks_json import write_tracks_json
+from idsplat_ns.nerfstudio.builtin_scene import instance_cache_dir
+from idsplat_ns.nerfstudio.dataparser import AutoDataParserConfig
 
 
 @dataclass
@@ -67,12 +73,6 @@ class PreprocessArgs:
 
 def preprocess(args: PreprocessArgs):
     """Load the sequence as ns-train does, run (or reuse) every stage, optionally export; returns the tracks."""
-    from idsplat_ns.data.scene import note_empty_sweeps
-    from idsplat_ns.data.split import split_frames
-    from idsplat_ns.instances.modes import instance_tracks_for_mode
-    from idsplat_ns.nerfstudio.builtin_scene import instance_cache_dir
-    from idsplat_ns.nerfstudio.dataparser import AutoDataParserConfig
-
     if args.export is not None:  # before the work, not after it
         check_writable(args.export, "--export", folder=False)
     config = AutoDataParserConfig(
@@ -95,8 +95,6 @@ def preprocess(args: PreprocessArgs):
     print(f"{len(tracks.instances)} dynamic instances, {len(tracks.static_instances)} made static; "
           f"stage caches in {cache_dir} (ns-train with the same data and settings reuses them)")
     if args.export is not None:
-        from idsplat_ns.instances.tracks_json import write_tracks_json
-
         write_tracks_json(args.export, tracks, scene.subset(train_frames))
         print(f"wrote {args.export}")
     return tracks
