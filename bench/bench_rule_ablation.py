@@ -41,6 +41,7 @@ from idsplat_ns.instances.cache import hash_json
 from idsplat_ns.instances.masks.config import MaskConfig
 from idsplat_ns.instances.modes import ground_truth_masks
 from idsplat_ns.instances.runner import PreprocessConfig, run_preprocessing
+from idsplat_ns.instances.trajectory_passes import TRACK_PASSES
 from idsplat_ns.model.trajectories import InstanceTrajectories
 
 from _streets import setting_of, street_arguments, training_streets  # bench/ is on the path when run as a script
@@ -121,18 +122,15 @@ RULES = [
          "the winner refitted (Umeyama) on all its consistent correspondences, twice"),
     Rule("no-icp", "registration", "registration.icp_iterations", 0,
          "point-to-plane ICP refinement of the RANSAC winner"),
-    Rule("no-chain", "registration", "trajectory.chain_neighbours", 0,
-         "failed frames registered again against their nearest registered frames (with motion-outliers and coast)"),
+    # The track builder's passes beyond the paper's, each with the setting that switches it off.
+    *(Rule(f"no-{p.name}", "registration", f"trajectory.{p.switch[0]}", p.switch[1], p.what)
+      for p in TRACK_PASSES if p.switch is not None),
     Rule("no-chain-centroid-velocity", "registration", "trajectory.chain_centroid_velocity", False,
          "beside the only registered frame, the chain predicts with the observations' centroid velocity"),
     Rule("no-chain-gate-growth", "registration", "trajectory.chain_gate_grows", False,
          "while the motion rests on two registered frames, the chain's 1 m gate grows with the extrapolation"),
     Rule("no-motion-outliers", "registration", "trajectory.motion_outliers", False,
          "registrations > 1 m off the constant-velocity prediction (the reference too) left to the chain, before and after it"),
-    Rule("no-coast", "registration", "trajectory.coast_frames", 0,
-         "one unregistered frame past either end takes the constant-velocity prediction when its points fit"),
-    Rule("no-heading-flips", "registration", "trajectory.heading_flips.enabled", False,
-         "registrations whose heading disagrees with the travel (flips, quarter turns) turned back"),
     Rule("no-segments", "registration", "trajectory.min_segment_frames", 0,
          "unregistered observations that register together (>= 3 frames) form a segment (and are linked back)"),
     Rule("no-segment-link", "registration", "trajectory.link_segments.enabled", False,

@@ -30,8 +30,8 @@ from idsplat_ns.instances.amodal_centre import AmodalCentreConfig
 from idsplat_ns.instances.masks.config import MaskConfig
 from idsplat_ns.instances.modes import ground_truth_masks
 from idsplat_ns.instances.ground import GroundSurface
-from idsplat_ns.instances.runner import (PreprocessConfig, ground_surface, registration_times, run_preprocessing,
-                                         smooth_instance)
+from idsplat_ns.instances.runner import PreprocessConfig, run_preprocessing
+from idsplat_ns.instances.smoothing.instance_tracks import ground_surface, registration_times, smooth_instance
 from idsplat_ns.instances.smoothing import SmoothingConfig
 from idsplat_ns.instances.tracks import InstanceTrack, InstanceTracks
 

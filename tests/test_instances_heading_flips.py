@@ -14,7 +14,9 @@ from idsplat_ns.instances.heading_flips import (
     HeadingFlipConfig, heading_errors, travel_directions, turn_about,
 )
 from idsplat_ns.instances.lifting import InstanceObservation
-from idsplat_ns.instances.trajectory_estimation import TrajectoryConfig, _correct_headings
+from idsplat_ns.instances.track_builder import TrackBuilder
+from idsplat_ns.instances.trajectory_config import TrajectoryConfig
+from idsplat_ns.instances.trajectory_passes import correct_headings, turn_centre
 
 
 def _turning_track(num: int = 16, dt: float = 0.2, shared_yaw: float = 0.7):
@@ -129,18 +131,14 @@ def test_correct_headings_restores_poses_and_remaps_canonical_points():
     flipped = [1, 2, 7]
     for k in flipped:
         registered[k] = turn_about(poses[k], np.zeros(3), np.pi)
-    valid = np.ones(12, bool)
-    fitness = np.ones(12)
-    counts = np.full(12, len(body))
-    canon_frames = list(range(12))
-    canon_pts = [transform_points(invert_pose(registered[k]), observations[k].points) for k in canon_frames]
-    cols = [None] * 12
-    _correct_headings(registered, valid, fitness, counts, canon_pts, cols, canon_frames, observations, t, TrajectoryConfig())
+    builder = TrackBuilder.registered(observations, registered, t)
+    correct_headings(builder, TrajectoryConfig())
+    assert builder.frames == list(range(12))
     for k in range(12):
-        np.testing.assert_allclose(registered[k][:3, 3], poses[k][:3, 3], atol=0.05)
-        assert abs(wrap_angle(yaw_of(registered[k]) - yaw_of(poses[k]))) < 0.02
-        np.testing.assert_allclose(canon_pts[k], body, atol=0.06)
-    assert np.all(fitness[flipped] > 0.9)
+        np.testing.assert_allclose(builder.poses[k][:3, 3], poses[k][:3, 3], atol=0.05)
+        assert abs(wrap_angle(yaw_of(builder.poses[k]) - yaw_of(poses[k]))) < 0.02
+        np.testing.assert_allclose(builder.chunks[k].points, body, atol=0.06)
+    assert np.all(builder.fitness[flipped] > 0.9)
 
 
 def test_correct_headings_leaves_a_parked_car_alone():
@@ -148,9 +146,11 @@ def test_correct_headings_leaves_a_parked_car_alone():
     poses = np.tile(make_pose(rot_z(0.3), np.array([4.0, 2.0, 0.0])), (8, 1, 1))
     poses[3] = turn_about(poses[3], np.zeros(3), np.pi)
     before = poses.copy()
-    pts = [np.zeros((5, 3)) for _ in range(8)]
-    _correct_headings(poses, np.ones(8, bool), np.ones(8), np.full(8, 50), pts, [None] * 8, list(range(8)), {}, t, TrajectoryConfig())
-    np.testing.assert_array_equal(poses, before)
+    observations = {k: InstanceObservation(k, np.zeros((50, 3)), np.zeros(50, np.int32), np.zeros((50, 2), np.float32))
+                    for k in range(8)}
+    builder = TrackBuilder.registered(observations, poses, t)
+    correct_headings(builder, TrajectoryConfig())
+    np.testing.assert_array_equal(builder.poses, before)
 
 
 
@@ -159,8 +159,6 @@ def test_heading_turns_are_about_the_vehicle_centre_not_the_seen_part():
     canonical frame has the world's axes at the densest frame): the middle of its points' box is
     off its centre, and a 180° turn about that middle would misplace the turned frames by twice as
     much (seed 5 of the small street: 0.9 m, and 10 far frames 1.8 m off)."""
-    from idsplat_ns.instances.trajectory_estimation import _turn_centre
-
     rng = np.random.default_rng(5)
     body = np.concatenate([box_surface(4000, CAR_SIZE, rng),
                            box_surface(800, np.array([2.0, 1.6, 0.6]), rng) + np.array([-0.8, 0.0, 1.0])])
@@ -177,11 +175,11 @@ def test_heading_turns_are_about_the_vehicle_centre_not_the_seen_part():
     true_centre = body_to_canonical[:3, 3]  # the car's centre in canonical coordinates
     assert np.linalg.norm(true_centre[:2]) > 0.3  # the middle of the points is off
     sensors = np.stack([transform_points(car[k], np.array([[-4.0, 8.0, 0.0]]))[0] for k in range(12)])  # right, behind
-    centre = _turn_centre(points, poses, list(range(12)), "Car", sensors)
+    centre = turn_centre(points, poses, list(range(12)), "Car", sensors)
     np.testing.assert_allclose(centre[:2], true_centre[:2], atol=0.15)
     # Without sensors or a known class, the middle of the points is all there is.
     for label, s in (("Car", None), ("thing", sensors)):
-        np.testing.assert_allclose(_turn_centre(points, poses, list(range(12)), label, s), 0.5 * (points.min(0) + points.max(0)))
+        np.testing.assert_allclose(turn_centre(points, poses, list(range(12)), label, s), 0.5 * (points.min(0) + points.max(0)))
 
 
 def test_a_parked_car_with_slid_registrations_is_not_turned():
@@ -199,12 +197,10 @@ def test_a_parked_car_with_slid_registrations_is_not_turned():
                                            np.zeros((len(world), 2), np.float32)) for k in range(8)}
 
     def correct(skip: bool):
-        poses, valid = slid.copy(), np.ones(8, bool)
-        pts = [transform_points(invert_pose(slid[k]), observations[k].points) for k in range(8)]
+        builder = TrackBuilder.registered(observations, slid, t)
         config = TrajectoryConfig(heading_flips=HeadingFlipConfig(skip_stationary=skip))
-        _correct_headings(poses, valid, np.ones(8), np.full(8, len(world)), pts, [None] * 8, list(range(8)), observations,
-                          t, config)
-        return poses, valid
+        correct_headings(builder, config)
+        return builder.poses, builder.valid
 
     poses, valid = correct(True)
     np.testing.assert_array_equal(poses, slid)

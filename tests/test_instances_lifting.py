@@ -21,7 +21,8 @@ from idsplat_ns.instances.masks.precomputed import PrecomputedMasksConfig, Preco
 from idsplat_ns.instances.registration import RegistrationConfig
 from idsplat_ns.instances.static_conversion import convert_static_instances
 from idsplat_ns.eval.instance_pose_errors import summarise_errors
-from idsplat_ns.instances.trajectory_estimation import TrajectoryConfig, estimate_trajectories
+from idsplat_ns.instances.trajectory_config import TrajectoryConfig
+from idsplat_ns.instances.trajectory_estimation import estimate_trajectories
 from idsplat_ns.instances.tracks import InstanceTrack, InstanceTracks
 
 

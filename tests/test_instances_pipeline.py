@@ -22,7 +22,7 @@ from idsplat_ns.instances.masks.precomputed import PrecomputedMasksConfig
 from idsplat_ns.instances.runner import PreprocessConfig, run_preprocessing
 from idsplat_ns.eval.instance_pose_errors import summarise_errors
 from idsplat_ns.instances.tracks import InstanceTracks
-from idsplat_ns.instances.trajectory_estimation import TrajectoryConfig
+from idsplat_ns.instances.trajectory_config import TrajectoryConfig
 
 
 @pytest.fixture(scope="module")

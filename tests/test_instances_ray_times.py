@@ -1,5 +1,5 @@
 """Lidar ray times in instance smoothing: a registration is placed at its rays' mean time, poses
-are read at the frame times, and each point is re-posed at its own ray time (runner.smooth_tracks).
+are read at the frame times, and each point is re-posed at its own ray time (smoothing/instance_tracks.py).
 
 The synthetic street's sweep fires the rays that hit a car up to 0.04 s after the frame time; at
 12.5 m/s that put the registered car up to 0.32 m ahead and stretched its view by up to 0.33 m.
@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from idsplat_ns.data.geometry import invert_pose, transform_points
-from idsplat_ns.instances.runner import smooth_tracks
+from idsplat_ns.instances.smoothing.instance_tracks import smooth_tracks
 from idsplat_ns.instances.smoothing import SmoothingConfig, smooth_trajectory
 from idsplat_ns.instances.tracks import InstanceTrack, InstanceTracks
 

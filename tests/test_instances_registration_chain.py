@@ -15,9 +15,9 @@ from idsplat_ns.instances.heading_flips import HeadingFlipConfig
 from idsplat_ns.instances.lifting import InstanceObservation, LiftedInstances
 from idsplat_ns.instances.registration import RegistrationConfig, registration_fitness
 from idsplat_ns.instances.segment_linking import SegmentLinkConfig
-from idsplat_ns.instances.trajectory_estimation import (
-    TrajectoryConfig, estimate_trajectories, motion_outliers, motion_prior_pose,
-)
+from idsplat_ns.instances.motion_prior import motion_outliers, motion_prior_pose
+from idsplat_ns.instances.trajectory_config import TrajectoryConfig
+from idsplat_ns.instances.trajectory_estimation import estimate_trajectories
 
 
 def test_motion_prior_pose_recovers_a_nearby_pose():
@@ -108,7 +108,7 @@ def test_a_slid_first_pass_registration_is_redone_from_the_motion(monkeypatch):
     """The first pass accepts frame 0 at 3.5 m ahead of itself with fitness 1.0 (recorded on the
     small street, seed 4: a car entering the view showed only its front); the motion check drops
     it and the chain registers it again from the constant-velocity prediction."""
-    import idsplat_ns.instances.trajectory_estimation as te
+    import idsplat_ns.instances.trajectory_passes as te
     from idsplat_ns.instances.registration import RegistrationResult
 
     rng = np.random.default_rng(2)
@@ -173,7 +173,7 @@ def _sliding_scene(slid_frames: set[int], foreign_frames: set[int] = frozenset()
 def _slide(monkeypatch, obs, frames: set[int], metres: float = 2.0) -> None:
     """Registration and the motion-prior ICP of ``frames`` slide ``metres`` along the car (what
     they did on the small street, seed 5: a car leaving the front-left camera's view)."""
-    import idsplat_ns.instances.trajectory_estimation as te
+    import idsplat_ns.instances.trajectory_passes as te
     from idsplat_ns.instances.registration import RegistrationResult
 
     real_register, real_prior = te.register, te.motion_prior_pose

@@ -10,7 +10,7 @@ import pytest
 
 from idsplat_ns.data.geometry import rot_z
 from idsplat_ns.errors import IDSplatError
-from idsplat_ns.instances.runner import instance_heading
+from idsplat_ns.instances.smoothing.instance_tracks import instance_heading
 from idsplat_ns.instances.smoothing import SmoothingConfig, smooth_trajectory
 from idsplat_ns.instances.smoothing.observability import cap_vertical_variance, translation_covariances
 from idsplat_ns.instances.smoothing.smoother import heading_yaw_near

@@ -1,0 +1,70 @@
+"""How instance poses are estimated from their lidar points: the settings of registration and of
+each pass of the track builder (:mod:`idsplat_ns.instances.trajectory_passes`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+from idsplat_ns.instances.heading_flips import HeadingFlipConfig
+from idsplat_ns.instances.registration import RegistrationConfig
+from idsplat_ns.instances.segment_linking import SegmentLinkConfig
+
+
+@dataclass(frozen=True)
+class TrajectoryConfig:
+    """How instance poses are estimated from their lidar points."""
+
+    method: Literal["registration", "centroid"] = "registration"
+    """``registration`` (the paper) or ``centroid`` (ablation c: translation from point centroids)."""
+    registration: RegistrationConfig = field(default_factory=RegistrationConfig)
+    """RANSAC settings."""
+    min_points: int = 10
+    """Instances never seen with at least this many points are dropped."""
+    min_segment_frames: int = 3
+    """Ours: observations of a mask instance that no registration reached form a new instance of
+    their own when at least this many of them register together (a turning car seen from the
+    front, then only from behind, shares no surface between the two views). The paper keeps one
+    instance per mask ID and drops them. 0 disables."""
+    chain_neighbours: int = 3
+    """Ours: a frame that fails against the whole canonical set is registered again against the
+    canonical points of only its (up to) this many nearest registered frames in time, outwards
+    from the registered ones. A turning car shows other faces than in its dense frames, so the
+    whole set scores below the fitness threshold while its neighbours' view matches. 0: the
+    paper's single pass."""
+    chain_max_gap: float = 1.0
+    """Seconds: neighbours further away in time are not used by the chained registration."""
+    chain_max_deviation: float = 1.0
+    """Metres: a chained registration is accepted only this close to the constant-velocity
+    prediction from the two nearest registered frames."""
+    chain_centroid_velocity: bool = True
+    """Ours, with the chain only: beside the only registered frame, predict with the velocity of
+    the observations' centroids (least squares over a second either side) instead of none. The
+    densest view of a car passing the ego is its nearest; its neighbours, 2 m away at 10 m/s and
+    0.2 s, never fell within ``chain_max_deviation`` of a zero-velocity prediction."""
+    chain_gate_grows: bool = True
+    """Ours, with the chain only: a prediction extrapolated from two registered frames close in
+    time may be off by more than ``chain_max_deviation``: the gate grows by the velocity error
+    that that deviation in either frame makes over their baseline, times the time extrapolated
+    (motion_prior.prediction_gate). Two frames 0.2 s apart, one slid 1.1 m along a car's flat
+    side, put the frame before them 1.7 m from the prediction."""
+    motion_outliers: bool = True
+    """Ours, with the chain only: before chaining, first-pass registrations further than
+    ``chain_max_deviation`` from the constant-velocity prediction of their two nearest registered
+    frames are dropped (worst first, one at a time) and left to the chained registration, which
+    starts from the motion. A car entering the view showed only its front, which registered onto
+    the rear of the canonical set 3.5 m ahead of itself at fitness 1.0."""
+    coast_frames: int = 1
+    """Ours, with the chain only: up to this many observed frames just past either end of the
+    registered frames that no registration reached take the constant-velocity prediction as their
+    pose when their points fit it (the registration fitness against the nearest registered frames'
+    canonical points). Their points do not join the canonical set. A car leaving the camera's view
+    is lifted cut at the image border; registration slides that cut onto the car's real end,
+    metres from where it is, and the instance ended a frame early while the images still show it.
+    0 disables."""
+    heading_flips: HeadingFlipConfig = field(default_factory=HeadingFlipConfig)
+    """Registrations whose heading disagrees with the direction of travel (front/back flips,
+    quarter turns), turned back (ours; see instances/heading_flips.py)."""
+    link_segments: SegmentLinkConfig = field(default_factory=SegmentLinkConfig)
+    """Split segments joined back to their instance through the vehicle's box (ours; see
+    instances/segment_linking.py). Needs the sensor positions (lidar sweeps)."""
