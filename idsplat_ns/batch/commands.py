@@ -15,11 +15,13 @@ from pathlib import Path
 from typing import Optional
 
 from idsplat_ns.batch.sequences import Sequence
+from idsplat_ns.data.formats import DATAPARSER_SUBCOMMANDS
 from idsplat_ns.errors import IDSplatError
 from idsplat_ns.instances.options import PREFIX as _PREPROCESS_PREFIX  # how ns-train spells a preprocessing setting
 
-DATAPARSERS = ("idsplat-auto", "idsplat-pandaset", "idsplat-waymo")
+DATAPARSERS = tuple(DATAPARSER_SUBCOMMANDS[k] for k in ("auto", "pandaset", "waymo"))
 """Dataparser subcommands a batch can drive (each takes --data and --protocol)."""
+BUILTIN = DATAPARSER_SUBCOMMANDS["builtin"]
 RUN_TIMESTAMP = "run"
 """ns-train's --timestamp: a fixed run folder, so that a re-run finds (and resumes) it."""
 OWNED_OPTIONS = ("--data", "--output-dir", "--experiment-name", "--timestamp", "--load-dir", "--load-step",
@@ -58,13 +60,13 @@ def split_user_options(args: list[str]) -> UserOptions:
             raise IDSplatError(f"ns-train option {_flag(token)}: set by idsplat-batch itself (data from --sequences, "
                                "run folders under --output-dir); remove it")
     subcommands = [i for i, t in enumerate(args) if t in DATAPARSERS]
-    if "idsplat-builtin" in args:
-        raise IDSplatError(f"ns-train dataparser idsplat-builtin: reads no --data; use one of {', '.join(DATAPARSERS)} "
+    if BUILTIN in args:
+        raise IDSplatError(f"ns-train dataparser {BUILTIN}: reads no --data; use one of {', '.join(DATAPARSERS)} "
                            "(write built-in streets to disk with idsplat-synth)")
     if len(subcommands) > 1:
         raise IDSplatError("ns-train options: more than one dataparser subcommand; give at most one")
     if not subcommands:
-        return UserOptions(tuple(args), "idsplat-auto", ())
+        return UserOptions(tuple(args), DATAPARSER_SUBCOMMANDS["auto"], ())
     i = subcommands[0]
     return UserOptions(tuple(args[:i]), args[i], tuple(args[i + 1:]))
 

@@ -14,6 +14,10 @@ from typing import Literal, Optional
 from idsplat_ns.errors import IDSplatError
 
 DataFormat = Literal["pandaset", "waymo-v1", "waymo-v2"]
+DATAPARSER_SUBCOMMANDS = {"auto": "idsplat-auto", "builtin": "idsplat-builtin", "pandaset": "idsplat-pandaset",
+                          "waymo": "idsplat-waymo"}
+"""The ns-train dataparser subcommand of each reader (``auto`` recognises ``--data``), written
+once: the adapter registers them, the settings checks and idsplat-batch name them."""
 V2_SPLITS = ("training", "validation", "testing")
 
 

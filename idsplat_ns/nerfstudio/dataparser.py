@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Optional, Tuple, Type
+from typing import ClassVar, Optional, Tuple, Type
 
 import numpy as np
 import torch
@@ -19,7 +19,7 @@ from nerfstudio.data.dataparsers.base_dataparser import DataParser, DataParserCo
 from nerfstudio.data.scene_box import SceneBox
 from rich.console import Console
 
-from idsplat_ns.data.formats import detect_data
+from idsplat_ns.data.formats import DATAPARSER_SUBCOMMANDS, detect_data
 from idsplat_ns.data.images import undistorted_view
 from idsplat_ns.data.pandaset import load_sequence
 from idsplat_ns.data.protocols import protocol_dataset, select_protocol
@@ -91,6 +91,8 @@ class IDSplatDataParserConfig(DataParserConfig):
 class BuiltinDataParserConfig(IDSplatDataParserConfig):
     """The built-in synthetic street (PandaSet layout), generated on first use and cached."""
 
+    subcommand: ClassVar[str] = DATAPARSER_SUBCOMMANDS["builtin"]
+
     _target: Type = field(default_factory=lambda: IDSplatDataParser)
     preset: str = "small"
     """Street preset: tiny, small, bench, varied or hard (docs/synthetic.md)."""
@@ -107,6 +109,8 @@ class BuiltinDataParserConfig(IDSplatDataParserConfig):
 @dataclass
 class PandaSetDataParserConfig(IDSplatDataParserConfig):
     """A PandaSet sequence folder (``.../pandaset/001``), or a street written by ``idsplat-synth``."""
+
+    subcommand: ClassVar[str] = DATAPARSER_SUBCOMMANDS["pandaset"]
 
     _target: Type = field(default_factory=lambda: IDSplatDataParser)
     lidar_sensors: Tuple[int, ...] = (0,)
@@ -128,6 +132,8 @@ class PandaSetDataParserConfig(IDSplatDataParserConfig):
 class WaymoDataParserConfig(IDSplatDataParserConfig):
     """A Waymo v1 segment (``segment-*.tfrecord``, or a folder of them with ``--segment``) or a v2
     root with ``--context-name``."""
+
+    subcommand: ClassVar[str] = DATAPARSER_SUBCOMMANDS["waymo"]
 
     _target: Type = field(default_factory=lambda: IDSplatDataParser)
     segment: Optional[str] = None
@@ -179,6 +185,8 @@ class AutoDataParserConfig(IDSplatDataParserConfig):
     """Whatever ``--data`` holds, recognised by its layout (a PandaSet sequence folder, a Waymo v1
     ``.tfrecord`` or a folder of them with ``--segment``, a v2 root with ``--context-name``); without
     ``--data``, the built-in street."""
+
+    subcommand: ClassVar[str] = DATAPARSER_SUBCOMMANDS["auto"]
 
     _target: Type = field(default_factory=lambda: IDSplatDataParser)
     segment: Optional[str] = None
@@ -317,12 +325,8 @@ class IDSplatDataParser(DataParser):
 
 IDSplatDataParserUnion = tyro.conf.OmitSubcommandPrefixes[  # type: ignore[misc]
     tyro.extras.subcommand_type_from_defaults(
-        {
-            "idsplat-auto": AutoDataParserConfig(),
-            "idsplat-builtin": BuiltinDataParserConfig(),
-            "idsplat-pandaset": PandaSetDataParserConfig(),
-            "idsplat-waymo": WaymoDataParserConfig(),
-        },
+        {c.subcommand: c() for c in (AutoDataParserConfig, BuiltinDataParserConfig, PandaSetDataParserConfig,
+                                     WaymoDataParserConfig)},
         prefix_names=False,
     )
 ]

@@ -170,20 +170,14 @@ ORDERED: tuple[tuple[str, str], ...] = (
 
 
 DATAPARSER = "pipeline.datamanager.dataparser."
-# The dataparser is a tyro subcommand: its options are spelled after the subcommand's name, bare.
-_SUBCOMMANDS = {
-    "AutoDataParserConfig": "idsplat-auto",
-    "BuiltinDataParserConfig": "idsplat-builtin",
-    "PandaSetDataParserConfig": "idsplat-pandaset",
-    "WaymoDataParserConfig": "idsplat-waymo",
-}
 
 
 def option_name(path: str, config: Any = None) -> str:
     """The command-line spelling of a config path (tyro turns underscores into dashes)."""
     if path.startswith(DATAPARSER):
         parser = _get(config, DATAPARSER[:-1]) if config is not None else None
-        subcommand = _SUBCOMMANDS.get(type(parser).__name__, "the dataparser subcommand")
+        # The dataparser is a tyro subcommand: its options are spelled after its name, bare.
+        subcommand = getattr(type(parser), "subcommand", "the dataparser subcommand")
         return f"{subcommand} --{path[len(DATAPARSER):].replace('_', '-')}"
     return "--" + path.replace("_", "-")
 
