@@ -91,6 +91,12 @@ def _idsplat_render_drive(args):
     return parse_args(args)
 
 
+def _idsplat_report(args):
+    from idsplat_ns.cli.report import parse_args
+
+    return parse_args(args)
+
+
 def _idsplat_export_onnx(args):
     from idsplat_ns.instances.export_onnx.cli import parse_args
 
@@ -103,6 +109,7 @@ PARSERS = {
     "idsplat-edit": _idsplat_edit,
     "idsplat-export": _idsplat_export,
     "idsplat-render-drive": _idsplat_render_drive,
+    "idsplat-report": _idsplat_report,
     "ns-train": _ns_train,
     "ns-eval": _ns_eval,
     "ns-viewer": _ns_viewer,

@@ -82,12 +82,16 @@ def notes(results: dict) -> list[str]:
     return [str(results[k]) for k in sorted(results) if k.endswith("_note")]
 
 
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="idsplat-report", description=__doc__)
+    parser.add_argument("eval_json", type=Path, help="the JSON that ns-eval --output-path wrote")
+    parser.add_argument("--renders", type=Path, default=None, help="ns-eval's --render-output-path, to print where it is")
+    parser.add_argument("--checkpoint-dir", type=Path, default=None, help="the run's nerfstudio_models/, to print its newest checkpoint")
+    return parser.parse_args(argv)
+
+
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("eval_json", type=Path)
-    parser.add_argument("--renders", type=Path, default=None)
-    parser.add_argument("--checkpoint-dir", type=Path, default=None)
-    args = parser.parse_args(argv)
+    args = parse_args(argv)
 
     def run() -> None:
         if not args.eval_json.is_file():
