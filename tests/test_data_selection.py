@@ -14,6 +14,7 @@ from idsplat_ns.data.protocols import PANDASET_10, PROTOCOL_NAMES, select_protoc
 from idsplat_ns.data.waymo.memory import check_fits, estimate_segment_memory, rays_per_frame
 from idsplat_ns.data.waymo.splits import load_split
 from idsplat_ns.errors import IDSplatError
+from idsplat_ns.nerfstudio.model_inputs import split_data
 
 REPO = Path(__file__).resolve().parents[1]
 FRAME = REPO.parent / "shared" / "data" / "waymo" / "pvps_data_one_frame.tfrecord"
@@ -179,11 +180,11 @@ def test_auto_dataparser_recognises_waymo_and_applies_a_protocol(segments, capsy
     parser = config.setup()
     train, test = parser.get_dataparser_outputs("train"), parser.get_dataparser_outputs("test")
     # notr-dynamic: three front cameras at half resolution, every 10th frame held out.
-    assert {im.camera for im in train.metadata["split_images"]} == {"FRONT", "FRONT_LEFT", "FRONT_RIGHT"}
-    assert sorted({im.frame_index for im in test.metadata["split_images"]}) == [0]
-    assert sorted({im.frame_index for im in train.metadata["split_images"]}) == [1, 2, 3]
-    assert int(train.cameras.width[0]) == 960 and train.metadata["protocol"] == "notr-dynamic"
-    assert train.metadata["scene"].has_lidar
+    assert {im.camera for im in split_data(train.metadata).images} == {"FRONT", "FRONT_LEFT", "FRONT_RIGHT"}
+    assert sorted({im.frame_index for im in split_data(test.metadata).images}) == [0]
+    assert sorted({im.frame_index for im in split_data(train.metadata).images}) == [1, 2, 3]
+    assert int(train.cameras.width[0]) == 960 and split_data(train.metadata).protocol == "notr-dynamic"
+    assert split_data(train.metadata).scene.has_lidar
 
 
 @needs_frame

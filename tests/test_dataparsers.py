@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 import torch
 
+from idsplat_ns.nerfstudio.model_inputs import split_data
+
 pytest.importorskip("nerfstudio")
 
 
@@ -22,12 +24,12 @@ def test_pandaset_dataparser_cameras_match_scene_projection(tiny_street):
     parser = PandaSetDataParserConfig(data=tiny_street, train_fraction=0.5).setup()
     train = parser.get_dataparser_outputs("train")
     test = parser.get_dataparser_outputs("test")
-    scene = train.metadata["scene"]
+    scene = split_data(train.metadata).scene
     n_train, n_test = len(train.image_filenames), len(test.image_filenames)
     assert n_train + n_test == len(scene.images) and n_test > 0
-    assert {im.frame_index for im in train.metadata["split_images"]}.isdisjoint({im.frame_index for im in test.metadata["split_images"]})
+    assert {im.frame_index for im in split_data(train.metadata).images}.isdisjoint({im.frame_index for im in split_data(test.metadata).images})
     # A lidar point seen by a camera: nerfstudio's ray through our projected pixel must pass through it.
-    image = train.metadata["split_images"][4]
+    image = split_data(train.metadata).images[4]
     idx = 4
     pts = scene.lidar[0].points
     proj = image.project(pts)
@@ -47,7 +49,7 @@ def test_pandaset_downscale_and_camera_subset(tiny_street):
 
     parser = PandaSetDataParserConfig(data=tiny_street, cameras=("front_camera",), downscale_factor=2).setup()
     out = parser.get_dataparser_outputs("train")
-    full = out.metadata["scene"].images[0].intrinsics
+    full = split_data(out.metadata).scene.images[0].intrinsics
     assert int(out.cameras.width[0]) == full.width // 2 and float(out.cameras.fx[0]) == pytest.approx(full.fx / 2, rel=1e-2)
     assert set(out.cameras.metadata["sensor_idx"][:, 0].tolist()) == {0}
 
@@ -60,7 +62,7 @@ def test_waymo_dataparser_on_the_real_frame(shared_data):
                                 downscale_factor=4, eval_every=None, train_fraction=1.0)  # one frame: train on it
     out = cfg.setup().get_dataparser_outputs("train")
     assert len(out.image_filenames) == 1 and int(out.cameras.width[0]) == 480 and int(out.cameras.height[0]) == 320
-    image = out.metadata["split_images"][0]
+    image = split_data(out.metadata).images[0]
     assert not image.intrinsics.has_distortion and "undistort_from" in image.metadata
     pixels = IDSplatDataset(out).get_numpy_image(0)
     assert pixels.shape == (320, 480, 3) and pixels.mean() > 20

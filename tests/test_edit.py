@@ -16,6 +16,7 @@ from _tiny_run import loaded_pipeline, tiny_run  # noqa: E402
 
 from idsplat_ns.data.tracks import label_group  # noqa: E402
 from idsplat_ns.model.editing import EditError, SceneTensors  # noqa: E402
+from idsplat_ns.nerfstudio.model_inputs import instance_inputs
 
 PREFIX = "_model.scene_model."
 
@@ -223,7 +224,7 @@ def test_cli_writes_a_run_that_loads_like_any_run(run_config, pipeline, tmp_path
     # --points adds each instance's lidar points, label and class from the run's (oracle) decomposition.
     main(["--load-config", str(run_config), "--list", "--points"])
     rows = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("│")]
-    tracks = pipeline.datamanager.train_dataset.metadata["instance_tracks"].instances
+    tracks = instance_inputs(pipeline.datamanager.train_dataset.metadata).tracks.instances
     expected = {t.instance_id: (len(t.canonical_points), t.label, label_group(t.label)) for t in tracks}
     for row in rows:
         cells = [c.strip() for c in row.strip("│").split("│")]

@@ -3,6 +3,7 @@ parameter groups, whole-sweep renders and the Table-2 metrics in ns-eval, camera
 without a lidar head, learnable camera time offsets."""
 
 from __future__ import annotations
+from idsplat_ns.nerfstudio.model_inputs import split_data
 
 import math
 from pathlib import Path
@@ -62,7 +63,7 @@ def test_training_step_adds_the_lidar_losses_with_gradients(lidar_trainer):
     assert losses["lidar_depth"].item() > 0
     assert all(p.grad is not None and p.grad.abs().sum() > 0 for p in model.scene_model.lidar_head.parameters())
     # Only the sweeps of training frames are sampled.
-    train_frames = {im.frame_index for im in lidar_trainer.pipeline.datamanager.train_dataset.metadata["split_images"]}
+    train_frames = {im.frame_index for im in split_data(lidar_trainer.pipeline.datamanager.train_dataset.metadata).images}
     assert {s.frame_index for s in model.lidar.sweeps} == train_frames
 
 
@@ -99,7 +100,7 @@ def test_sweep_render_and_eval_metrics(lidar_trainer):
     pipeline = lidar_trainer.pipeline
     model = pipeline.model
     sweeps = pipeline._held_out_sweeps()
-    eval_frames = {im.frame_index for im in pipeline.datamanager.eval_dataset.metadata["split_images"]}
+    eval_frames = {im.frame_index for im in split_data(pipeline.datamanager.eval_dataset.metadata).images}
     assert sweeps and {s.frame_index for s in sweeps} == eval_frames
     model.eval()
     render = model.render_lidar_sweep(sweeps[0])

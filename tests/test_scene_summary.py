@@ -19,6 +19,7 @@ from idsplat_ns.instances.tracks import InstanceTrack
 from idsplat_ns.model.gaussians import GaussianSet
 from idsplat_ns.model.scene_model import DecoderConfig, SceneModel
 from idsplat_ns.model.scene_summary import gaussian_counts, parameter_counts
+from idsplat_ns.nerfstudio.model_inputs import INSTANCES_KEY, SPLIT_KEY, instance_inputs, split_data
 
 STEPS = 3
 
@@ -107,13 +108,23 @@ def trained(tiny_street, tmp_path_factory):
     return trainer, cfg, before
 
 
-def _model_with(trained, **metadata_changes):
+def _metadata_with(dm, **changes) -> dict:
+    """The training dataset's metadata with fields of its SplitData (``scene``, ``images``) or its
+    InstanceInputs (``tracks``, ``mode``, ``test_mode``) changed."""
+    meta = dict(dm.train_dataset.metadata)
+    split, inputs = split_data(meta), instance_inputs(meta)
+    split_fields = {k: v for k, v in changes.items() if k in ("scene", "images")}
+    meta[SPLIT_KEY] = replace(split, **split_fields)
+    meta[INSTANCES_KEY] = replace(inputs, **{k: v for k, v in changes.items() if k not in split_fields})
+    return meta
+
+
+def _model_with(trained, **changes):
     """The run's model built again from its metadata with some parts changed (training mode)."""
     trainer, cfg, _ = trained
     dm = trainer.pipeline.datamanager
-    meta = {**dm.train_dataset.metadata, **metadata_changes}
     return cfg.pipeline.model.setup(scene_box=dm.train_dataset.scene_box, num_train_data=len(dm.train_dataset),
-                                    metadata=meta, device="cpu", grad_scaler=None)  # fmt: skip
+                                    metadata=_metadata_with(dm, **changes), device="cpu", grad_scaler=None)  # fmt: skip
 
 
 def test_the_camera_backend_option_reaches_the_scene_model(trained, tmp_path):
@@ -175,10 +186,10 @@ def test_summary_is_printed_once_before_training(trained, capsys):
 
 
 def test_an_instance_that_does_not_move_gets_no_trajectory(trained):
-    tracks = trained[0].pipeline.datamanager.train_dataset.metadata["instance_tracks"]
+    tracks = instance_inputs(trained[0].pipeline.datamanager.train_dataset.metadata).tracks
     first = tracks.instances[0]
     stopped = replace(first, poses=np.repeat(first.poses[first.canonical_frame][None], len(first.poses), 0))
-    model = _model_with(trained, instance_tracks=replace(tracks, instances=[stopped] + tracks.instances[1:]))
+    model = _model_with(trained, tracks=replace(tracks, instances=[stopped] + tracks.instances[1:]))
     s = model.scene_summary()
     assert first.instance_id not in s.moving_instances and len(s.moving_instances) == len(tracks.instances) - 1
     assert [st.instance_id for st in s.static_instances] == [first.instance_id]
@@ -188,9 +199,9 @@ def test_an_instance_that_does_not_move_gets_no_trajectory(trained):
 
 
 def test_a_scene_with_no_moving_object_has_no_trajectory_parameters(trained):
-    tracks = trained[0].pipeline.datamanager.train_dataset.metadata["instance_tracks"]
+    tracks = instance_inputs(trained[0].pipeline.datamanager.train_dataset.metadata).tracks
     parked = [replace(i, poses=np.repeat(i.poses[i.canonical_frame][None], len(i.poses), 0)) for i in tracks.instances]
-    model = _model_with(trained, instance_tracks=replace(tracks, instances=parked))
+    model = _model_with(trained, tracks=replace(tracks, instances=parked))
     groups = model.get_param_groups()
     assert model.scene_model.trajectories is None and model.scene_model.camera_time_offset is None
     assert not any(k.startswith("trajectory") or k == "camera_time_offsets" for k in groups)
@@ -202,8 +213,8 @@ def test_a_scene_with_no_moving_object_has_no_trajectory_parameters(trained):
 def test_a_scene_without_lidar_has_no_lidar_head_and_no_lidar_losses(trained):
     trainer = trained[0]
     dm = trainer.pipeline.datamanager
-    scene = dm.train_dataset.metadata["scene"]
-    model = _model_with(trained, scene=replace(scene, lidar=[]), instance_tracks=None, instance_mode="static")
+    scene = split_data(dm.train_dataset.metadata).scene
+    model = _model_with(trained, scene=replace(scene, lidar=[]), tracks=None, mode="static")
     assert model.scene_model.lidar_head is None and model.lidar is None
     assert "lidar_head" not in model.get_param_groups()
     model.train()
@@ -215,10 +226,10 @@ def test_a_scene_without_lidar_has_no_lidar_head_and_no_lidar_losses(trained):
 
 
 def test_a_camera_without_training_images_gets_no_embedding(trained):
-    meta = trained[0].pipeline.datamanager.train_dataset.metadata
-    names = meta["camera_names"]
-    images = [im for im in meta["split_images"] if im.camera != names[1]]
-    model = _model_with(trained, split_images=images)
+    split = split_data(trained[0].pipeline.datamanager.train_dataset.metadata)
+    names = split.camera_names
+    images = [im for im in split.images if im.camera != names[1]]
+    model = _model_with(trained, images=images)
     s = model.scene_summary()
     assert s.cameras_unused == [names[1]] and s.cameras_used == [names[0], names[2]]
     assert s.embedding_parameters == 2 * 8 and model.scene_model.sensor_rows == [0, -1, 1]
@@ -232,17 +243,17 @@ def test_only_pedestrians_and_cyclists_deform_and_checkpoints_keep_the_choice(tr
 
     trainer, cfg, _ = trained
     dm = trainer.pipeline.datamanager
-    tracks = dm.train_dataset.metadata["instance_tracks"]
+    tracks = instance_inputs(dm.train_dataset.metadata).tracks
     walker = replace(tracks.instances[0], label="pedestrian")
     with_people = replace(tracks, instances=[walker] + tracks.instances[1:])
 
     def build(enabled: bool, **meta):
         model_cfg = replace(cfg.pipeline.model, deformation=DeformationConfig(enabled=enabled))
         return model_cfg.setup(scene_box=dm.train_dataset.scene_box, num_train_data=len(dm.train_dataset),
-                               metadata={**dm.train_dataset.metadata, **meta}, device="cpu", grad_scaler=None)
+                               metadata=_metadata_with(dm, **meta), device="cpu", grad_scaler=None)
 
     assert build(True).scene_model.deformation is None  # cars only: nothing deforms
-    model = build(True, instance_tracks=with_people)
+    model = build(True, tracks=with_people)
     deform = model.scene_model.deformation
     assert deform.instance_ids.tolist() == [walker.instance_id]
     s = model.scene_summary()
@@ -254,11 +265,11 @@ def test_only_pedestrians_and_cyclists_deform_and_checkpoints_keep_the_choice(tr
     with torch.no_grad():
         deform.mlp[-1].bias.fill_(0.3)
     # ns-eval builds the model without instances' settings and takes the checkpoint's shape.
-    loaded = build(False, instance_tracks=with_people, test_mode="test")
+    loaded = build(False, tracks=with_people, test_mode="test")
     assert loaded.scene_model.deformation is None
     loaded.load_state_dict(model.state_dict())
     t = float(tracks.frame_times[1])
     assert torch.equal(loaded.scene_model.posed_gaussians(t)["means"], model.scene_model.posed_gaussians(t)["means"])
-    rigid = build(True, instance_tracks=with_people, test_mode="test")
+    rigid = build(True, tracks=with_people, test_mode="test")
     rigid.load_state_dict(trainer.pipeline.model.state_dict())
     assert rigid.scene_model.deformation is None

@@ -11,6 +11,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from idsplat_ns.errors import IDSplatError
 from idsplat_ns.instances.tracks_json import tracks_from_json, tracks_to_json, write_tracks_json
+from idsplat_ns.nerfstudio.model_inputs import split_data
 
 
 @pytest.fixture(scope="module")
@@ -142,10 +143,9 @@ def test_preprocess_and_ns_train_share_one_cache(tiny_street, tmp_path, capsys):
     # The datamanager's path: same scene, same training frames, same cache -> every stage from the cache.
     from idsplat_ns.instances.modes import instance_tracks_for_mode
     from idsplat_ns.instances.runner import PreprocessConfig
-    from idsplat_ns.nerfstudio.dataset import frames_of_split
 
     outputs = PandaSetDataParserConfig(data=tiny_street).setup().get_dataparser_outputs("train")
-    again = instance_tracks_for_mode(outputs.metadata["scene"], "self-supervised", frames_of_split(outputs.metadata),
+    again = instance_tracks_for_mode(split_data(outputs.metadata).scene, "self-supervised", split_data(outputs.metadata).frames,
                                      PreprocessConfig(), cache)
     table = capsys.readouterr().out
     assert "registration" in table and "cache - registration" in table

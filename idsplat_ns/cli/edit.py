@@ -19,6 +19,7 @@ from idsplat_ns.atomic import check_writable
 from idsplat_ns.errors import IDSplatError, run_cli
 from idsplat_ns.model.editing import EditError, SceneTensors
 from idsplat_ns.model.instance_summary import summarise_instances
+from idsplat_ns.nerfstudio.model_inputs import instance_inputs
 from idsplat_ns.runs.edits import apply_edits, check_edit_values
 from idsplat_ns.runs.run_folder import SCENE_PREFIX, load_run, write_run
 
@@ -60,7 +61,7 @@ def instance_points(config) -> dict[int, tuple[int, str, str]]:
     data as ns-eval does (stage caches make it cheap the second time). IDs that the data does not
     have (duplicates) are absent."""
     datamanager = config.pipeline.datamanager.setup(device="cpu", test_mode="inference")
-    tracks = datamanager.train_dataset.metadata.get("instance_tracks")
+    tracks = instance_inputs(datamanager.train_dataset.metadata).tracks
     if tracks is None:
         return {}
     return {int(t.instance_id): (len(t.canonical_points), str(t.label), t.category) for t in tracks.instances}

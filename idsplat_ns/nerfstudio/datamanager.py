@@ -17,7 +17,8 @@ from idsplat_ns.instances.runner import PreprocessConfig
 from idsplat_ns.instances.tracks_json import tracks_from_json
 from idsplat_ns.nerfstudio.builtin_scene import instance_cache_dir
 from idsplat_ns.nerfstudio.dataparser import AutoDataParserConfig, IDSplatDataParserUnion
-from idsplat_ns.nerfstudio.dataset import IDSplatDataset, frames_of_split
+from idsplat_ns.nerfstudio.dataset import IDSplatDataset
+from idsplat_ns.nerfstudio.model_inputs import INSTANCES_KEY, InstanceInputs, split_data
 
 CONSOLE = Console()
 
@@ -52,25 +53,22 @@ class IDSplatDataManager(FullImageDatamanager[IDSplatDataset]):
 
     def __init__(self, config: IDSplatDataManagerConfig, device="cpu", test_mode="val", **kwargs):
         super().__init__(config, device=device, test_mode=test_mode, **kwargs)
-        meta = self.train_dataset.metadata
+        split = split_data(self.train_dataset.metadata)
         # The model initialises Gaussians only for training ("val"); ns-eval and ns-viewer
         # ("test"/"inference") load a checkpoint instead (stage caches make the tracks cheap then).
-        meta["test_mode"] = test_mode
-        scene = meta["scene"]
-        train_frames = frames_of_split(meta)
-        meta["instance_mode"] = config.instance_mode
         if config.import_tracks is not None:
-            meta["instance_mode"] = "imported"
-            meta["instance_tracks"] = tracks_from_json(config.import_tracks, scene.subset(train_frames))
-            CONSOLE.print(f"[bold]instances: {len(meta['instance_tracks'].instances)} imported from {config.import_tracks}")
+            tracks = tracks_from_json(config.import_tracks, split.scene.subset(split.frames))
+            inputs = InstanceInputs("imported", tracks, test_mode)
+            CONSOLE.print(f"[bold]instances: {len(tracks.instances)} imported from {config.import_tracks}")
         else:
-            meta["instance_tracks"] = instance_tracks_for_mode(
-                scene, config.instance_mode, train_frames, config.preprocess, instance_cache_dir(scene.name)
-            )
+            tracks = instance_tracks_for_mode(split.scene, config.instance_mode, split.frames, config.preprocess,
+                                              instance_cache_dir(split.scene.name))
+            inputs = InstanceInputs(config.instance_mode, tracks, test_mode)
+        self.train_dataset.metadata[INSTANCES_KEY] = inputs
 
     @property
     def scene(self):
-        return self.train_dataparser_outputs.metadata["scene"]
+        return split_data(self.train_dataparser_outputs.metadata).scene
 
     def get_datapath(self) -> Path:
         """The sequence's folder: ``--data`` where given, else where the scene was read from (the

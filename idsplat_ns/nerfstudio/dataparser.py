@@ -30,6 +30,7 @@ from idsplat_ns.data.waymo.memory import available_memory_bytes, check_fits, est
 from idsplat_ns.data.waymo.v1 import read_v1
 from idsplat_ns.errors import IDSplatError
 from idsplat_ns.nerfstudio.builtin_scene import builtin_street
+from idsplat_ns.nerfstudio.model_inputs import SPLIT_KEY, SplitData
 
 CONSOLE = Console()
 
@@ -312,14 +313,7 @@ class IDSplatDataParser(DataParser):
             image_filenames=[im.image_path or Path(f"{im.camera}/{im.frame_index:04d}") for im in images],
             cameras=cameras,
             scene_box=SceneBox(aabb=torch.tensor(np.stack([lo, hi]), dtype=torch.float32)),
-            metadata={
-                "scene": scene,
-                "split_images": images,
-                "image_scale": scale,
-                "camera_names": camera_names,
-                "split": split,
-                "protocol": self.config.protocol,
-            },
+            metadata={SPLIT_KEY: SplitData(scene, images, scale, camera_names, split, self.config.protocol)},
         )
 
 

@@ -11,11 +11,7 @@ from nerfstudio.data.datasets.base_dataset import InputDataset
 
 from idsplat_ns.data.dynamic_masks import dynamic_mask, moving_object_map
 from idsplat_ns.data.images import load_rgb
-
-
-def frames_of_split(metadata: dict) -> set[int]:
-    """Dataset frame indices of the images in a split (the dataparser's ``split_images``)."""
-    return {int(im.frame_index) for im in metadata["split_images"]}
+from idsplat_ns.nerfstudio.model_inputs import split_data
 
 
 class IDSplatDataset(InputDataset):
@@ -27,16 +23,17 @@ class IDSplatDataset(InputDataset):
 
     def __init__(self, dataparser_outputs, scale_factor: float = 1.0):
         super().__init__(dataparser_outputs, scale_factor)
-        self.scene = self.metadata["scene"]
-        self.split_images = self.metadata["split_images"]
-        self.image_scale = float(self.metadata["image_scale"]) * scale_factor
+        self.split = split_data(self.metadata)
+        self.scene = self.split.scene
+        self.split_images = self.split.images
+        self.image_scale = float(self.split.image_scale) * scale_factor
         self.extra_groups = [g for g in ("pedestrian", "cyclist") if any(t.moving and t.group == g for t in self.scene.tracks)]
 
     def get_numpy_image(self, image_idx: int) -> np.ndarray:
         return load_rgb(self.split_images[image_idx], self.image_scale)
 
     def get_metadata(self, data: Dict) -> Dict:
-        if self.metadata.get("split") == "train":
+        if self.split.split == "train":
             return {}
         image = self.split_images[data["image_idx"]]
         # Moving vehicles (the paper's DPSNR), plus the other classes the data has.

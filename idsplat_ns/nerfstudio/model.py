@@ -46,7 +46,7 @@ from idsplat_ns.model.scene_summary import SceneSummary, summarise, summary_line
 from idsplat_ns.model.schedules import resolution_downscale
 from idsplat_ns.model.trajectories import InstanceTrajectories
 from idsplat_ns.nerfstudio.dataparser import OPENCV_TO_OPENGL
-from idsplat_ns.nerfstudio.dataset import frames_of_split
+from idsplat_ns.nerfstudio.model_inputs import instance_inputs, split_data
 from idsplat_ns.nerfstudio.render_guard import check_render_tools
 from idsplat_ns.nerfstudio.viewer_controls import InstanceControls, in_viewer_render
 from idsplat_ns.nerfstudio.viewer_scene import start_view
@@ -144,9 +144,10 @@ class IDSplatModel(Model):
         super().populate_modules()
         check_render_tools()  # ns-render without ffmpeg: one line now, not after loading and rendering
         metadata = self.kwargs.get("metadata", {})
-        scene = metadata["scene"]
-        self.camera_names: List[str] = list(metadata["camera_names"])
-        tracks = metadata.get("instance_tracks")
+        split, inputs = split_data(metadata), instance_inputs(metadata)
+        scene = split.scene
+        self.camera_names: List[str] = list(split.camera_names)
+        tracks = inputs.tracks
         self.static_config = StaticConversionConfig(min_displacement=static_threshold(self.config.static_min_displacement, tracks))
         if tracks is not None:
             # Only what moves gets a trajectory: oracle flags and imported tracks are not filtered upstream.
@@ -155,17 +156,16 @@ class IDSplatModel(Model):
         trajectories = None
         if tracks is not None and len(tracks.instances) > 0:
             trajectories = InstanceTrajectories.from_instance_tracks(tracks, refine=self.config.refine_trajectories)
-        if metadata.get("test_mode", "val") == "val":
-            gaussians = self._initial_gaussians(scene, metadata["split_images"], tracks if trajectories is not None else None)
+        if inputs.training:
+            gaussians = self._initial_gaussians(scene, split.images, tracks if trajectories is not None else None)
         else:
             # ns-eval / ns-viewer: a checkpoint is loaded next (load_state_dict resizes), so the
             # initialisation (a KNN over millions of points at paper settings) would be wasted.
             gaussians = GaussianSet(0, self.config.decoder.feature_dim)
-        train_frames = frames_of_split(metadata)
-        lidar_sweeps = sweeps_of_frames(scene, train_frames) if self.config.lidar.enabled else []
+        lidar_sweeps = sweeps_of_frames(scene, split.frames) if self.config.lidar.enabled else []
         self.num_lidar_sweeps = len(lidar_sweeps)
         # A camera without training images would keep an untrained (zero) embedding: it gets none.
-        self.used_cameras = {im.camera for im in metadata["split_images"]}
+        self.used_cameras = {im.camera for im in split.images}
         self.scene_model = SceneModel(
             gaussians, len(self.camera_names), self.config.decoder, trajectories, self.config.background_color,
             lidar_head_hidden=self.config.lidar.head_hidden if lidar_sweeps else None,
@@ -176,7 +176,7 @@ class IDSplatModel(Model):
         )
         self.shutters = ShutterLookup(scene.images, self.camera_names) if self.config.rolling_shutter else None
         # Knots at the training images (a checkpoint brings its own: load_state_dict).
-        self.exposure = ImageExposure.for_images(metadata["split_images"], self.camera_names) if self.config.exposure else None
+        self.exposure = ImageExposure.for_images(split.images, self.camera_names) if self.config.exposure else None
         self.rig_correction = RigCorrection(len(self.camera_names)) if self.config.camera_refinement else None
         self.lidar = LidarSupervisor(lidar_sweeps, self.config.lidar, seed=self.config.init_seed) if lidar_sweeps else None
         cap = min(self.config.mcmc.cap_max, int(self.config.cap_factor * max(gaussians.num, 1)))
@@ -196,8 +196,8 @@ class IDSplatModel(Model):
         self.viewer_controls = InstanceControls(self, start_view(scene))
         self.step = 0
         self._lpips = None
-        self.instance_mode = str(metadata.get("instance_mode", "static" if tracks is None else "given"))
-        if metadata.get("test_mode", "val") == "val":
+        self.instance_mode = str(inputs.mode)
+        if inputs.training:
             CONSOLE.print("[bold]IDSplat models:[/bold]\n  " + "\n  ".join(summary_lines(self.scene_summary())), soft_wrap=True)
 
     def _deformation(self, trajectories, tracks) -> Optional[InstanceDeformation]:

@@ -29,7 +29,7 @@ from idsplat_ns.eval.object_plots import plot_object_timeline
 from idsplat_ns.eval.trajectory_eval import ground_truth_positions, predicted_positions, tracking_metrics
 from idsplat_ns.eval.trajectory_plots import plot_position_errors, plot_scene_top_view
 from idsplat_ns.model.lidar_supervision import sweeps_of_frames
-from idsplat_ns.nerfstudio.dataset import frames_of_split
+from idsplat_ns.nerfstudio.model_inputs import instance_inputs, split_data
 
 CONSOLE = Console()
 
@@ -73,7 +73,7 @@ class IDSplatPipeline(VanillaPipeline):
         if getattr(self.model, "lidar", None) is None:
             return []
 
-        frames = frames_of_split(self.datamanager.eval_dataset.metadata)
+        frames = split_data(self.datamanager.eval_dataset.metadata).frames
         return sweeps_of_frames(self.datamanager.scene, frames)
 
     def _lidar_metrics(self, progress: Progress, range_errors: list) -> tuple[dict, Optional[str]]:
@@ -154,10 +154,11 @@ class IDSplatPipeline(VanillaPipeline):
             result["plots"] = self._write_plots(output_path, per_image, range_errors, objects)
             CONSOLE.print(f"plots: {', '.join(result['plots'])}")
         if step is None:  # ns-eval's JSON says which protocol and instance source the result belongs to
-            meta = self.datamanager.train_dataparser_outputs.metadata
-            result["protocol"] = meta.get("protocol") or "none (the dataparser's own split options)"
-            result["instance_mode"] = self.datamanager.train_dataset.metadata.get("instance_mode")
-            tracks = self.datamanager.train_dataset.metadata.get("instance_tracks")
+            protocol = split_data(self.datamanager.train_dataparser_outputs.metadata).protocol
+            result["protocol"] = protocol or "none (the dataparser's own split options)"
+            inputs = instance_inputs(self.datamanager.train_dataset.metadata)
+            result["instance_mode"] = inputs.mode
+            tracks = inputs.tracks
             if tracks is not None and tracks.metadata.get("mask_source"):
                 result["mask_source"] = tracks.metadata["mask_source"]
         if step is None:  # notes only in ns-eval's JSON: the trainer logs metrics as scalars
