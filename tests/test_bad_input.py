@@ -321,6 +321,10 @@ SETTING_CASES = [
      "--pipeline.datamanager.preprocess.smoothing.motion-rot-sigma"),
     ("dbscan-eps-zero", _apply("pipeline.datamanager.preprocess.lifting.dbscan_eps", 0.0), "--pipeline.datamanager.preprocess.lifting.dbscan-eps"),
     ("missing-import-tracks", _apply("pipeline.datamanager.import_tracks", Path("/nonexistent/tracks.json")), "--pipeline.datamanager.import-tracks"),
+    ("camera-refinement-prior-zero-size", _apply("pipeline.model.camera_refinement_prior", (1e-3, 0.0, 0.05)),
+     "--pipeline.model.camera-refinement-prior"),
+    ("camera-refinement-prior-negative-weight", _apply("pipeline.model.camera_refinement_prior", (-1.0, 1.0, 0.05)),
+     "--pipeline.model.camera-refinement-prior"),
 ]
 
 
@@ -470,3 +474,23 @@ def test_outputs_are_checked_before_any_work(tmp_path: Path) -> None:
         locked.mkdir(mode=0o500)
         with pytest.raises(IDSplatError, match="is not writable"):
             check_writable(locked / "tracks.json", "--export", folder=False)
+
+
+@pytest.mark.parametrize("options,words", [
+    (["--exposure-drift", "1.5"], ["--exposure-drift", "less than 1"]),
+    (["--exposure-drift", "-0.1"], ["--exposure-drift"]),
+    (["--calibration-error-deg", "nan", "0"], ["--calibration-error-deg"]),
+    (["--calibration-error-deg", "1", "45"], ["--calibration-error-deg", "-10 to 10"]),
+], ids=["drift-above-one", "drift-negative", "calibration-nan", "calibration-45-degrees"])
+def test_bad_rig_defect_option_of_idsplat_synth_fails_in_one_line(tmp_path: Path, options, words, monkeypatch, capsys) -> None:
+    """idsplat-synth's rig defects out of range: one line naming the option, exit 2, nothing written."""
+    from idsplat_ns.data.synthetic.cli import main
+
+    out = tmp_path / "out"
+    monkeypatch.setattr("sys.argv", ["idsplat-synth", "--preset", "tiny", "--out", str(out), *options])
+    with pytest.raises(SystemExit) as info:
+        main()
+    assert info.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and all(w in err[0] for w in words), err
+    assert not out.exists()

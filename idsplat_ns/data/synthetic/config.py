@@ -7,6 +7,7 @@ show the same kind of street; `varied` and `hard` are `small`'s sensors with tra
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -158,6 +159,8 @@ MAX_PEDESTRIANS = 12
 """Most pedestrians a street holds (beyond this, free places along the sidewalks run short)."""
 MAX_CYCLISTS = 6
 """Most cyclists a street holds (the lanes also carry the vehicles)."""
+MAX_CALIBRATION_ERROR_DEG = 10.0
+"""Largest calibration error a street is written with: a rig further off is mounted wrong, not miscalibrated."""
 
 
 def get_preset(preset: str | SyntheticConfig) -> SyntheticConfig:
@@ -193,6 +196,9 @@ def check_config(config: SyntheticConfig) -> None:
         raise IDSplatError(f"num_cyclists={config.num_cyclists}: choose 0 to {MAX_CYCLISTS} (--cyclists)")
     if not 0.0 <= rig.exposure_drift < 1.0:
         raise IDSplatError(f"exposure drift {rig.exposure_drift:g}: choose 0 (none) to less than 1 (--exposure-drift)")
+    if not all(math.isfinite(v) and abs(v) <= MAX_CALIBRATION_ERROR_DEG for v in rig.calibration_error_deg):
+        raise IDSplatError(f"calibration error {' '.join(f'{v:g}' for v in rig.calibration_error_deg)} degrees: choose "
+                           f"values from -{MAX_CALIBRATION_ERROR_DEG:g} to {MAX_CALIBRATION_ERROR_DEG:g} (--calibration-error-deg)")
     if config.traffic not in TRAFFIC_KINDS:
         raise IDSplatError(f"traffic={config.traffic!r}: choose one of {', '.join(TRAFFIC_KINDS)} (--traffic)")
 
