@@ -14,4 +14,7 @@ to nerfstudio's start-up time.
 All three are applied by an import hook (:mod:`idsplat_ns._compat.startup`) that a ``.pth`` file
 installs at interpreter start, so they run before nerfstudio's first import of torchvision (and
 the third just after nerfstudio loads its external-method list).
+
+Layer: the lowest beside ``errors`` and ``atomic``, which are all it may import of the project
+(its start-up hook runs at every Python start and must stay cheap).
 """
