@@ -8,7 +8,7 @@ the table gives each repeat's wall times and their ratio (batch / by hand), then
 
     .venv/bin/python bench/bench_batch.py --streets 3 --steps 5 --repeats 2
 
-Prints the table; ``--markdown`` prints it as a Markdown table for docs/batch.md.
+Prints the table; ``--markdown`` prints it as a Markdown table for docs/reports/2026-11-27-batch-overhead.md.
 """
 
 from __future__ import annotations

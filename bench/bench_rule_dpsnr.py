@@ -1,5 +1,5 @@
 """DPSNR of the rules beyond the paper whose ablation without training was mixed (switching them off
-raised MOTA@2m but worsened the box-corner error, ``docs/rule_ablation.md``): each variant is
+raised MOTA@2m but worsened the box-corner error, ``docs/reports/2026-11-27-rule-ablation.md``): each variant is
 trained with ``ns-train idsplat-fast`` (self-supervised, instances from the street's ground-truth
 2D masks, as the ablation) and evaluated with ``ns-eval``, beside the defaults and the defaults
 with another training seed (``default-seed``: how much two runs of one configuration differ).

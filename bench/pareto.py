@@ -10,7 +10,7 @@ preprocessing runs once before the points (``idsplat-preprocess``, timed apart) 
 point reads it from the cache. Then ``ns-eval``: PSNR, SSIM, DPSNR, MOTA@2m, lidar depth error
 (``lidar_depth``: median squared range error, m^2), and the Gaussians in the final checkpoint.
 
-    .venv/bin/python bench/pareto.py --seeds 100 --work outputs/pareto --table docs/pareto_table.md --plot docs/pareto.png
+    .venv/bin/python bench/pareto.py --seeds 100 --work outputs/pareto --table docs/pareto_table.md --plot docs/reports/2026-11-27-pareto.png
     .venv/bin/python bench/pareto.py --points steps-300 steps-1000 --seeds 100 101 --work W
 
 Each training and evaluation runs on ``--threads`` threads (default 1: ``OMP_NUM_THREADS`` in their

@@ -6,7 +6,7 @@ The speed/accuracy trade is a preset: ``idsplat-fast`` keeps the model and losse
 fewer steps with a proportionally shorter resolution schedule, fewer initial Gaussians and a lidar
 batch every fourth step; ``idsplat-medium`` trains that model 3000 steps; ``idsplat-preview``
 trains 1000 steps from half as many initial Gaussians. The points were chosen on the measured
-front of docs/pareto.md (``bench/pareto.py``).
+front of docs/reports/2026-11-27-pareto.md (``bench/pareto.py``).
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """bench/pareto.py: the presets are its points, its children run on the threads asked, and its
-front, means and plot are what the table in docs/pareto.md says."""
+front, means and plot are what the table in docs/reports/2026-11-27-pareto.md says."""
 
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ def _bench_pareto():
 
 
 def test_the_cpu_presets_are_the_points_measured_in_bench_pareto():
-    # docs/pareto.md reports the CPU presets as points of bench/pareto.py: the
+    # docs/reports/2026-11-27-pareto.md reports the CPU presets as points of bench/pareto.py: the
     # presets must be what those points train.
     from method_configs.idsplat import idsplat_fast_method, idsplat_medium_method, idsplat_preview_method
 
@@ -34,7 +34,7 @@ def test_the_cpu_presets_are_the_points_measured_in_bench_pareto():
 
 
 def test_bench_pareto_children_run_on_the_threads_asked(capsys):
-    # docs/pareto.md reports CPU times of one-thread trainings: the count reaches the child.
+    # docs/reports/2026-11-27-pareto.md reports CPU times of one-thread trainings: the count reaches the child.
     import os
     import sys
 

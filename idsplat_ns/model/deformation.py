@@ -32,7 +32,7 @@ from torch import Tensor, nn
 
 @dataclass
 class DeformationConfig:
-    """Non-rigid instances (off by default: see docs/model.md for what it measured)."""
+    """Non-rigid instances (off by default: see docs/reports/2026-11-27-deformation.md for what it measured)."""
 
     enabled: bool = False
     """Give the instances of ``classes`` a time-dependent deformation (False: every instance rigid,

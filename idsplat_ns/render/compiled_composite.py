@@ -363,7 +363,7 @@ def _run_split(kernel, order: np.ndarray, threads: int, per_part) -> None:
 def _filled(shape: tuple, dtype, value: float = 0.0) -> np.ndarray:
     """An array the threaded kernels write into, its pages touched here, in one thread: fresh
     pages first written from two threads at once (page faults) made the camera's backward kernel
-    on 2 threads no faster than on 1 (docs/rendering.md, "Measured: speed")."""
+    on 2 threads no faster than on 1 (docs/reports/2026-11-27-cpu-rendering-speed.md)."""
     out = np.empty(shape, dtype)
     out.fill(value)
     return out

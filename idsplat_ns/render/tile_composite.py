@@ -55,7 +55,7 @@ _SENTINEL_EXPONENT = 1e30  # padding rows: alpha = 0
 _MIN_BLOCK_ROWS = 32  # rows per block at least, so per-tile work (D values per sample) stays small
 DEFAULT_BLOCK_ELEMS = 1 << 18  # (row, sample) values per block: 1 MiB float32 per temporary
 # On a GPU each block costs kernel launches from Python, not cache misses: 2^24 composites a
-# 1920x1280 image with 1M Gaussians 22x faster than 2^18 on an H200 (docs/rendering.md, GPU).
+# 1920x1280 image with 1M Gaussians 22x faster than 2^18 on an H200 (docs/reports/2026-11-27-gpu-rasterizers.md).
 CUDA_BLOCK_ELEMS = 1 << 24
 
 

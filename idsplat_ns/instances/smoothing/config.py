@@ -117,7 +117,7 @@ class SmoothingConfig:
     """Ours, off by default: the canonical points of a measurement flagged as an outlier leave the instance's point
     set (a wrong registration put them in the wrong place of the canonical frame, where they would
     seed misplaced Gaussians and skew the amodal centre). False keeps every registered point, as
-    the paper's pipeline does. Off by default: on ten streets it was not made for, keeping the points gave a higher MOTA@2m on six and a lower one on one (mean 0.887 against 0.875), with the same box-corner error (docs/rule_ablation.md)."""
+    the paper's pipeline does. Off by default: on ten streets it was not made for, keeping the points gave a higher MOTA@2m on six and a lower one on one (mean 0.887 against 0.875), with the same box-corner error (docs/reports/2026-11-27-rule-ablation.md)."""
     measurement_times: bool = True
     """Ours: a registration is placed at its points' mean lidar ray time instead of the frame time
     (where ray times are known). The rays that hit a car are fired up to half a sweep (0.05 s)
@@ -174,7 +174,7 @@ class SmoothingConfig:
     from behind at 50-70 m (25-77 points a frame) registered 0.4-0.6 m to either side of its
     lane across its track on every synthetic street; with the ground in place, this took its
     box-corner error from 0.27 m to 0.12 m on average over seeds 0-12, and no instance got worse
-    by 5 mm (docs/smoothing.md). Dense views keep ``measurement_trans_sigma`` there (a car
+    by 5 mm (docs/reports/2026-11-27-smoothed-poses.md). Dense views keep ``measurement_trans_sigma`` there (a car
     followed from behind, whose rear's texture places it sideways). None: only anchored
     directions."""
     degenerate_one_sided: bool = True
