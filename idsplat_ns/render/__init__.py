@@ -29,6 +29,9 @@ near_plane=0.01, far_plane=1e10, eps2d=0.3, tile_size=8, ray_cutoff=None [R], cu
     The dense every-Gaussian-against-every-pixel reference (tests and benchmarks only).
 
 See ``docs/rendering.md`` for the compositing rules, the speed table and design notes.
+
+Layer: beside ``data``, above ``errors``, ``atomic`` and ``_compat``, which are all it may import
+of the project.
 """
 
 from .lidar import LidarRender, rasterize_lidar
