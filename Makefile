@@ -43,7 +43,7 @@ demo: install
 		--checkpoint-dir $(DEMO)/idsplat-fast/run/nerfstudio_models
 
 bench: install
-	$(BIN)/python bench/bench_rasterizer.py
+	$(BIN)/python -m bench.bench_rasterizer
 
 clean:
 	rm -rf $(VENV) outputs .pytest_cache

@@ -6,7 +6,7 @@ By hand is what a user types per sequence: ``ns-train`` (which preprocesses itse
 Each arm gets a fresh instance cache, so both compute the preprocessing. The arms alternate, and
 the table gives each repeat's wall times and their ratio (batch / by hand), then the median.
 
-    .venv/bin/python bench/bench_batch.py --streets 3 --steps 5 --repeats 2
+    .venv/bin/python -m bench.bench_batch --streets 3 --steps 5 --repeats 2
 
 Prints the table; ``--markdown`` prints it as a Markdown table for docs/reports/2026-11-27-batch-overhead.md.
 """
@@ -24,7 +24,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from idsplat_ns.batch.commands import RUN_TIMESTAMP
+from idsplat_ns.batch.commands import RUN_TIMESTAMP, eval_command, split_user_options, train_command
+from idsplat_ns.batch.sequences import Sequence
 
 BIN = Path(sys.executable).parent
 METHOD = "idsplat-fast"
@@ -48,12 +49,11 @@ def by_hand(streets: list[Path], options: list[str], work: Path) -> float:
     out = work / "out"
     total = 0.0
     for street in streets:
-        total += _timed([str(BIN / "ns-train"), METHOD, "--output-dir", str(out), "--experiment-name", street.name,
-                         "--timestamp", RUN_TIMESTAMP, "--vis", "tensorboard", *options, "--data", str(street)],
-                        env, work / "hand.log")
+        train = train_command(Sequence(street.name, street), METHOD, split_user_options(list(options)), out)
+        total += _timed([str(BIN / train[0]), *train[1:]], env, work / "hand.log")
         config = out / street.name / METHOD / RUN_TIMESTAMP / "config.yml"
-        total += _timed([str(BIN / "ns-eval"), "--load-config", str(config), "--output-path", str(out / f"{street.name}.json")],
-                        env, work / "hand.log")
+        evaluate = eval_command(config, out / f"{street.name}.json")
+        total += _timed([str(BIN / evaluate[0]), *evaluate[1:]], env, work / "hand.log")
     return total
 
 

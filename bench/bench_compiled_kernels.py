@@ -2,8 +2,8 @@
 ``CompiledGaussianComposite`` on the inputs that one camera render gives it (garden points as in
 ``bench_rasterizer.py``), without the projection, tile sorting and torch ops around them.
 
-    .venv/bin/python bench/bench_compiled_kernels.py --threads 1
-    .venv/bin/python bench/bench_compiled_kernels.py --module /tmp/variant.py --threads 1
+    .venv/bin/python -m bench.bench_compiled_kernels --threads 1
+    .venv/bin/python -m bench.bench_compiled_kernels --module /tmp/variant.py --threads 1
 
 ``--module`` times another copy of ``idsplat_ns/render/compiled_composite.py`` (a variant being
 tried) on the same inputs; the first call of a fresh copy compiles it (untimed warm-up).
@@ -20,13 +20,10 @@ from pathlib import Path
 
 import torch
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(REPO / "bench"))
+import idsplat_ns.render as render
+import idsplat_ns.render.compiled_composite as compiled
+from bench.bench_rasterizer import make_scene
 
-import idsplat_ns.render as render  # noqa: E402
-import idsplat_ns.render.compiled_composite as compiled  # noqa: E402
-from bench_rasterizer import make_scene  # noqa: E402
 
 
 def kernel_inputs(n: int, width: int, height: int) -> dict:

@@ -4,7 +4,7 @@ instances, so that only the model of the people differs), evaluates with ``ns-ev
 one table per street and the mean over the streets (PSNR, DPSNR of moving vehicles, pedestrians
 and cyclists, training wall time).
 
-    .venv/bin/python bench/bench_deformation.py --preset small --seeds 100 101 102 103 104 --steps 600 \\
+    .venv/bin/python -m bench.bench_deformation --preset small --seeds 100 101 102 103 104 --steps 600 \\
         --train-args "--pipeline.model.lidar.enabled False"
 
 Variants: ``rigid`` (every instance rigid, the paper) and ``deformable``
@@ -17,7 +17,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from _train_variants import mean_rows, print_table, synth_street, train_and_evaluate  # bench/ is on the path as a script
+from bench.train_variants import mean_rows, print_table, synth_street, train_and_evaluate
 
 ORACLE = ["--pipeline.datamanager.instance-mode", "oracle"]
 VARIANTS = {

@@ -3,7 +3,7 @@ auto-exposure drift: generates each street (``idsplat-synth --exposure-drift``),
 variant with ``ns-train idsplat-fast`` (oracle instances, so that only the camera model differs),
 evaluates with ``ns-eval`` and prints one table (held-out PSNR, SSIM, DPSNR, training wall time).
 
-    .venv/bin/python bench/bench_exposure.py --preset varied --seeds 100 101 --drift 0.3
+    .venv/bin/python -m bench.bench_exposure --preset varied --seeds 100 101 --drift 0.3
 
 Held-out images carry the drift too: the correction there is interpolated in time from the same
 camera's training images, never fitted to the image being scored.
@@ -14,7 +14,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from _train_variants import print_table, synth_street, train_and_evaluate  # bench/ is on the path as a script
+from bench.train_variants import print_table, synth_street, train_and_evaluate
 
 VARIANTS = {
     "off": ["--pipeline.datamanager.instance-mode", "oracle", "--pipeline.model.exposure", "False"],

@@ -5,7 +5,7 @@ For each variant: noisy ground-truth masks (unless stated) -> lifting -> feature
 then the median translation / rotation errors of moving vehicles against the ground-truth tracks
 (frames where the instance has >= 50 lidar points; before smoothing), pooled over the seeds.
 
-    .venv/bin/python bench/bench_instances_ablation.py --preset tiny --seeds 0 1 2 3
+    .venv/bin/python -m bench.bench_instances_ablation --preset tiny --seeds 0 1 2 3
 """
 
 from __future__ import annotations

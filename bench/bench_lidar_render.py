@@ -7,13 +7,13 @@ both revisions (same seed). Each revision runs in a child process of its own wit
 on its source tree (a git worktree for ``--against``), the two alternating ``--rounds`` times, so
 that load on the machine falls on both alike. Quote the medians and their ratio.
 
-    .venv/bin/python bench/bench_lidar_render.py --against HEAD~1 --threads 1
-    .venv/bin/python bench/bench_lidar_render.py --method idsplat --seed 100 --against v0 --out T.md
+    .venv/bin/python -m bench.bench_lidar_render --against HEAD~1 --threads 1
+    .venv/bin/python -m bench.bench_lidar_render --method idsplat --seed 100 --against v0 --out T.md
 
 ``--compositors torch triton`` times lidar compositors of one engine beside each other instead
 (one model, the compositors alternating batch round by batch round), e.g. on a GPU machine::
 
-    python bench/bench_lidar_render.py --method idsplat --seed 100 --compositors torch triton --rounds 2
+    python -m bench.bench_lidar_render --method idsplat --seed 100 --compositors torch triton --rounds 2
 
 Without git history (a GPU machine), pass the other revision as a source tree made here:
 ``git archive REV idsplat_ns | tar -x -C .prev`` and ``--against-tree .prev``. The other revision's
@@ -25,14 +25,11 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
-import sys
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "bench"))
-import _revisions as revisions  # noqa: E402  (sibling scripts, not a package)
-from profile_train_step import PRESETS, build_trainer  # noqa: E402
+from bench import revisions
+from bench.profile_train_step import PRESETS, build_trainer
 
 
 def _sync() -> None:
@@ -76,7 +73,7 @@ def child(args: argparse.Namespace) -> None:
 
 
 def run_child(tree: Path, args: argparse.Namespace, work: Path, inner_rounds: int) -> dict:
-    cmd = [__file__, "--child", "--method", args.method, "--preset", args.preset, "--seed", str(args.seed),
+    cmd = ["-m", "bench.bench_lidar_render", "--child", "--method", args.method, "--preset", args.preset, "--seed", str(args.seed),
            "--threads", str(args.threads), "--warmup", str(args.warmup), "--batches", str(args.batches),
            "--work", str(work), "--inner-rounds", str(inner_rounds), "--compositors", *args.compositors]  # fmt: skip
     return revisions.run_child("bench_lidar_render.py", cmd, tree, args.threads)

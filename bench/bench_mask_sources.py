@@ -5,8 +5,8 @@ eroded or dilated edges, false positives, identity swaps; ``instances/masks/pert
 MOTP@2m, precision, recall and identity switches of the moving vehicles (the observed protocol, pooled over the
 streets) and the preprocessing time.
 
-    .venv/bin/python bench/bench_mask_sources.py --preset small --seeds 100 101 102 103 104 --work WORK
-    .venv/bin/python bench/bench_mask_sources.py --sources "lidar motion" "lidar motion, points painted back through its masks"
+    .venv/bin/python -m bench.bench_mask_sources --preset small --seeds 100 101 102 103 104 --work WORK
+    .venv/bin/python -m bench.bench_mask_sources --sources "lidar motion" "lidar motion, points painted back through its masks"
 
 The preprocessing is ``ns-train``'s (``instance_tracks_for_mode``, self-supervised, training
 frames); stages are cached in ``WORK/cache-<seed>`` under keys that include the masks and their
@@ -28,7 +28,7 @@ from idsplat_ns.instances.modes import instance_tracks_for_mode
 from idsplat_ns.instances.runner import PreprocessConfig
 from idsplat_ns.model.trajectories import InstanceTrajectories
 
-from _streets import street_arguments, training_streets  # bench/ is on the path when run as a script
+from bench.streets import street_arguments, training_streets
 
 GT = PreprocessConfig(masks=MaskConfig(kind="ground-truth"))
 NO_NOISE = MaskNoiseConfig(max_edge_px=0, miss_probability=0.0, spurious_per_sequence=0, swap_probability=0.0)
@@ -48,7 +48,7 @@ def main() -> None:
     ap = street_arguments(__doc__.splitlines()[0])
     ap.set_defaults(seeds=[100, 101, 102, 103, 104])
     ap.add_argument("--sources", nargs="+", default=list(SOURCES), metavar="NAME",
-                    help=f"rows to measure, by name (default: all of {list(SOURCES)})")
+                    help="rows to measure, by name (default: all of " + ", ".join(SOURCES).replace("%", "%%") + ")")
     args = ap.parse_args()
     unknown = [n for n in args.sources if n not in SOURCES]
     if unknown:

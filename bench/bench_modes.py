@@ -3,8 +3,8 @@ with ``ns-eval`` and prints one row per (street, mode) (image, dynamic-region, t
 metrics, training wall time), then, per object name (the built-in street's manoeuvre), the frames
 lost and the DPSNR of each mode from ns-eval's per-object diagnosis.
 
-    .venv/bin/python bench/bench_modes.py --preset small --seeds 1 --steps 1500
-    .venv/bin/python bench/bench_modes.py --preset hard --seeds 100 101 102 103 --modes self-supervised oracle \\
+    .venv/bin/python -m bench.bench_modes --preset small --seeds 1 --steps 1500
+    .venv/bin/python -m bench.bench_modes --preset hard --seeds 100 101 102 103 --modes self-supervised oracle \\
         --jobs 2 --out T.md
 
 Each run is the plain command line a user would type (printed before it starts), so every figure
@@ -25,6 +25,10 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
+
+from idsplat_ns.batch.commands import eval_command, split_user_options, train_command
+from idsplat_ns.batch.sequences import Sequence
+from idsplat_ns.nerfstudio.builtin_scene import builtin_street
 
 BIN = Path(sys.executable).parent
 COLUMNS = (
@@ -50,13 +54,14 @@ def train_and_evaluate(preset: str, seed: int, mode: str, args: argparse.Namespa
     env = dict(os.environ, OMP_NUM_THREADS="1", MKL_NUM_THREADS="1") if args.jobs > 1 else dict(os.environ)
     train_s = float("nan")
     if not (args.skip_existing and eval_json.is_file()):
-        train_s = _run([
-            str(BIN / "ns-train"), "idsplat-fast", "--vis", "tensorboard", "--output-dir", str(args.output_dir),
-            "--experiment-name", name, "--timestamp", "run", "--max-num-iterations", str(args.steps),
-            "--pipeline.datamanager.instance-mode", mode, *shlex.split(args.train_args),
-            "idsplat-builtin", "--preset", preset, "--seed", str(seed),
-        ], env)  # fmt: skip
-        _run([str(BIN / "ns-eval"), "--load-config", str(run_dir / "config.yml"), "--output-path", str(eval_json)], env)
+        # The built-in street as idsplat-pandaset reads it (the same reader as idsplat-builtin's).
+        street = builtin_street(preset, seed)
+        user = split_user_options(["--max-num-iterations", str(args.steps), "--pipeline.datamanager.instance-mode", mode,
+                                   *shlex.split(args.train_args), "idsplat-pandaset"])
+        train = train_command(Sequence(name, street), "idsplat-fast", user, args.output_dir)
+        train_s = _run([str(BIN / train[0]), *train[1:]], env)
+        evaluate = eval_command(run_dir / "config.yml", eval_json)
+        _run([str(BIN / evaluate[0]), *evaluate[1:]], env)
     results = json.loads(eval_json.read_text())["results"]
     results["train_s"] = train_s
     return results

@@ -4,7 +4,7 @@ training frames), each knob moved one at a time from the default. Per variant: M
 precision, recall and identity switches of the moving vehicles (the observed protocol, pooled over
 the streets), the mean preprocessing seconds per street and the seconds of each stage.
 
-    .venv/bin/python bench/bench_preprocessing_knobs.py --preset tiny --seeds 3 --variants default "features fpfh"
+    .venv/bin/python -m bench.bench_preprocessing_knobs --preset tiny --seeds 3 --variants default "features fpfh"
     OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 NUMBA_NUM_THREADS=1 nice -n 10 .venv/bin/python \\
         bench/bench_preprocessing_knobs.py --preset small --seeds 100 101 102 103 104 --work WORK --out TABLE.md
 
@@ -51,7 +51,7 @@ from idsplat_ns.instances.modes import ground_truth_masks
 from idsplat_ns.instances.runner import PreprocessConfig, PreprocessResult, run_preprocessing
 from idsplat_ns.model.trajectories import InstanceTrajectories
 
-from _streets import street_arguments, training_streets  # bench/ is on the path when run as a script
+from bench.streets import street_arguments, training_streets
 
 DEFAULT = PreprocessConfig(masks=MaskConfig(kind="lidar-motion"))
 

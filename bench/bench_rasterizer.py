@@ -16,13 +16,13 @@ the compiled compositor). ``--compositor torch`` times the tensor-op compositor 
 default (compiled on the CPU).
 
 Side by side with another revision (``--against REV``, or ``--against-tree DIR``, see
-``bench/_revisions.py``): each revision runs in child processes of its own, alternating
+``bench/revisions.py``): each revision runs in child processes of its own, alternating
 ``--rounds`` times, and the table gives both revisions' medians and their ratio.
 
-    .venv/bin/python bench/bench_rasterizer.py --threads 2
-    .venv/bin/python bench/bench_rasterizer.py --sizes 320x240 --counts 10000,100000 --repeats 5 --dense-sizes ""
-    .venv/bin/python bench/bench_rasterizer.py --scene street --sizes 320x192 --repeats 5 --dense-sizes ""
-    .venv/bin/python bench/bench_rasterizer.py --sizes 320x240 --counts 100000 --dense-sizes "" --against HEAD~1
+    .venv/bin/python -m bench.bench_rasterizer --threads 2
+    .venv/bin/python -m bench.bench_rasterizer --sizes 320x240 --counts 10000,100000 --repeats 5 --dense-sizes ""
+    .venv/bin/python -m bench.bench_rasterizer --scene street --sizes 320x192 --repeats 5 --dense-sizes ""
+    .venv/bin/python -m bench.bench_rasterizer --sizes 320x240 --counts 100000 --dense-sizes "" --against HEAD~1
 """
 
 from __future__ import annotations
@@ -32,7 +32,6 @@ import json
 import os
 import resource
 import statistics
-import sys
 import time
 from pathlib import Path
 
@@ -40,9 +39,8 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import _revisions as revisions  # noqa: E402  (a sibling script, not a package)
-from idsplat_ns.render import project_gaussians, rasterize_camera, rasterize_dense  # noqa: E402
+from bench import revisions
+from idsplat_ns.render import project_gaussians, rasterize_camera, rasterize_dense
 
 GARDEN = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "gsplat" / "test_garden.npz"
 STREET = Path.home() / ".cache" / "idsplat_ns" / "synthetic" / "synth_small_0"
@@ -177,7 +175,7 @@ def _row_text(row: dict) -> str:
 def side_by_side(args) -> None:
     """Each revision in child processes, alternating ``--rounds`` times; one table of medians."""
     trees = revisions.trees("bench_rasterizer.py", args.against, args.against_tree)
-    cmd = [__file__, "--child", "--sizes", args.sizes, "--counts", args.counts, "--dense-sizes", "",
+    cmd = ["-m", "bench.bench_rasterizer", "--child", "--sizes", args.sizes, "--counts", args.counts, "--dense-sizes", "",
            "--threads", str(args.threads), "--repeats", str(args.repeats), "--tile-size", str(args.tile_size),
            "--scene", args.scene, "--street-points", str(args.street_points), "--compositor", args.compositor]  # fmt: skip
     times: dict = {}

@@ -8,7 +8,7 @@ the mean box-corner error of the moving vehicles' final poses at the training fr
 matching and errors of ``bench_smoothed_poses.py``) and the stage seconds. Prints a markdown
 table with a verdict per rule (see ``_verdict``) and writes the per-street results to ``--json``.
 
-    nice -n 5 env OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 .venv/bin/python bench/bench_rule_ablation.py \\
+    nice -n 5 env OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 .venv/bin/python -m bench.bench_rule_ablation \\
         --preset small --seeds 100 101 102 103 104 105 106 107 108 109 --work /tmp/ablation \\
         --json /tmp/ablation/rule_ablation.json
 
@@ -44,8 +44,8 @@ from idsplat_ns.instances.runner import PreprocessConfig, run_preprocessing
 from idsplat_ns.instances.trajectory_passes import TRACK_PASSES
 from idsplat_ns.model.trajectories import InstanceTrajectories
 
-from _streets import setting_of, street_arguments, training_streets  # bench/ is on the path when run as a script
-from bench_smoothed_poses import _errors, _matching_box_poses
+from bench.streets import setting_of, street_arguments, training_streets
+from bench.box_errors import matching_box_poses, pose_errors
 
 RESULTS_VERSION = 1  # bumped when what a stored (variant, street) result holds changes
 MOTA_TOL = 0.002  # a street's MOTA@2m counts as worse/better beyond this
@@ -170,7 +170,7 @@ def variant_configs(base: PreprocessConfig) -> dict[str, tuple[str, PreprocessCo
     return out
 
 
-def _moving_vehicle_errors(tracks, train_scene) -> list[dict]:
+def _moving_vehiclepose_errors(tracks, train_scene) -> list[dict]:
     """Per dynamic instance that follows a moving annotated vehicle (``match_instance``): its mean
     box-corner, 3D and yaw errors at the training frames (``bench_smoothed_poses._errors``: after
     the constant canonical-to-box offset that fits best)."""
@@ -184,11 +184,11 @@ def _moving_vehicle_errors(tracks, train_scene) -> list[dict]:
         box = train_scene.tracks[index]
         if not (box.moving and box.group == "vehicle"):
             continue
-        boxes, size = _matching_box_poses(inst, train_scene, tracks)
+        boxes, size = matching_box_poses(inst, train_scene, tracks)
         poses = {int(k): inst.poses[k] for k in np.flatnonzero(inst.valid) if boxes[k] is not None}
         if len(poses) < 3:
             continue
-        e3, _, _, ey, ec = _errors(poses, boxes, size)
+        e3, _, _, ey, ec = pose_errors(poses, boxes, size)
         out.append({"instance": int(inst.instance_id), "object": str(box.track_id), "frames": len(poses),
                     "corner": ec, "error_3d": e3, "yaw_deg": ey})
     return out
@@ -203,7 +203,7 @@ def evaluate(scene, train: set[int], config: PreprocessConfig, cache: Path) -> d
     tracks = result.tracks
     summary = tracking_summary(scene, InstanceTrajectories.from_instance_tracks(tracks).positions_at)
     flat = flatten_metrics(summary)
-    errors = _moving_vehicle_errors(tracks, train_scene)
+    errors = _moving_vehiclepose_errors(tracks, train_scene)
     return {
         "mota": flat.get("mota@2m", float("nan")), "motp": flat.get("motp@2m", float("nan")), "metrics": flat,
         "summary": {f"{th:g}": asdict(m) for th, m in summary.items()},

@@ -6,7 +6,7 @@ with another training seed (``default-seed``: how much two runs of one configura
 Prints one table per street and the mean over the streets (PSNR, DPSNR, its change from the
 defaults, MOTA@2m and MOTP@2m after training, training wall time).
 
-    nice -n 5 env OMP_NUM_THREADS=1 .venv/bin/python bench/bench_rule_dpsnr.py --seeds 100 101 102 --steps 600
+    nice -n 5 env OMP_NUM_THREADS=1 .venv/bin/python -m bench.bench_rule_dpsnr --seeds 100 101 102 --steps 600
 
 Variants of one street can run in two processes at once (``--variants``, each writes its own
 folder); ``--skip-existing`` then prints the whole table from the stored runs.
@@ -17,8 +17,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from _train_variants import mean_rows, synth_street, train_and_evaluate  # bench/ is on the path as a script
-from bench_rule_ablation import RULE_BY_NAME, Rule, config_names
+from bench.train_variants import mean_rows, synth_street, train_and_evaluate
+from bench.bench_rule_ablation import RULE_BY_NAME, Rule
+from bench.streets import config_names
 
 MIXED = ("no-vertical-motion", "no-tilt-motion", "no-heading-prior", "no-degenerate", "no-sparse-views",
          "no-refit", "no-segments")

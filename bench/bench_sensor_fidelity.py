@@ -3,7 +3,7 @@ rolling-shutter camera rig: generates the street (``idsplat-synth --rolling-shut
 each variant with ``ns-train``, evaluates with ``ns-eval`` and prints one table (PSNR, SSIM,
 DPSNR and training wall time).
 
-    .venv/bin/python bench/bench_sensor_fidelity.py --preset small --seed 100 --readout-ms 40 --steps 1500
+    .venv/bin/python -m bench.bench_sensor_fidelity --preset small --seed 100 --readout-ms 40 --steps 1500
 
 Variants (``--variants``): ``full`` (both on, the defaults), ``no-rs`` (no rolling-shutter
 compensation in rendering), ``no-view-dirs`` (no view directions in the RGB decoder) and
@@ -19,7 +19,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from _train_variants import print_table, synth_street, train_and_evaluate  # bench/ is on the path as a script
+from bench.train_variants import print_table, synth_street, train_and_evaluate
 
 VARIANTS = {
     "full": ["--pipeline.datamanager.instance-mode", "oracle"],

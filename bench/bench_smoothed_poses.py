@@ -5,7 +5,7 @@ canonical frame is arbitrary; the box is the one holding most of the instance's 
 the mean 3D, height, tilt, yaw and box-corner errors per variant (the corners of the annotated
 box moved by the estimate: position and rotation weighed as a render of the vehicle weighs them).
 
-    .venv/bin/python bench/bench_smoothed_poses.py --preset small --seeds 0 1 2 --work /tmp/trk
+    .venv/bin/python -m bench.bench_smoothed_poses --preset small --seeds 0 1 2 --work /tmp/trk
 
 Registrations come from the same preprocessing as ``ns-train idsplat`` up to smoothing: the moving
 instances after the parked ones are converted (cached in ``--work``, the same layout as
@@ -20,12 +20,9 @@ from __future__ import annotations
 
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 from tqdm import tqdm
 
-from idsplat_ns.data.tracks import box_corners
 from idsplat_ns.errors import IDSplatError
-from idsplat_ns.eval.instance_pose_errors import match_instance
 from idsplat_ns.instances.amodal_centre import AmodalCentreConfig
 from idsplat_ns.instances.masks.config import MaskConfig
 from idsplat_ns.instances.modes import ground_truth_masks
@@ -33,9 +30,10 @@ from idsplat_ns.instances.ground import GroundSurface
 from idsplat_ns.instances.runner import PreprocessConfig, run_preprocessing
 from idsplat_ns.instances.smoothing.instance_tracks import ground_surface, registration_times, smooth_instance
 from idsplat_ns.instances.smoothing import SmoothingConfig
-from idsplat_ns.instances.tracks import InstanceTrack, InstanceTracks
+from idsplat_ns.instances.tracks import InstanceTrack
 
-from _streets import street_arguments, training_streets  # bench/ is on the path when run as a script
+from bench.box_errors import matching_box_poses, pose_errors
+from bench.streets import street_arguments, training_streets
 
 VARIANTS = {
     "default": SmoothingConfig(),
@@ -63,37 +61,6 @@ def _parse_variant(text: str) -> tuple[str, SmoothingConfig]:
         return name, SmoothingConfig(**fields)
     except (TypeError, ValueError, IDSplatError) as exc:
         raise SystemExit(f"--variant {text!r}: {exc}") from None
-
-
-def _matching_box_poses(inst: InstanceTrack, train_scene, tracks: InstanceTracks) -> tuple[list, np.ndarray] | None:
-    """Per step the pose [4, 4] (or None) of the annotated box that holds most of the instance's
-    points at its canonical frame (``match_instance``), and the box's size [3]; None if no box does."""
-    index = match_instance(train_scene, inst)
-    if index is None:
-        return None
-    box = train_scene.tracks[index]
-    return [box.pose_at_frame(int(f)) for f in tracks.frame_indices], np.asarray(box.size, np.float64)
-
-
-def _errors(poses: dict, boxes: list, size: np.ndarray) -> tuple[float, ...]:  # poses: step -> [4, 4]
-    """Mean 3D [m], height [m], tilt [deg], yaw [deg] and box-corner [m] error after the best
-    constant offset (the corners weigh position and rotation as a render of the vehicle does)."""
-    offsets = [np.linalg.inv(P) @ boxes[k] for k, P in poses.items()]
-    C = np.eye(4)
-    C[:3, 3] = np.mean([o[:3, 3] for o in offsets], axis=0)
-    C[:3, :3] = Rotation.from_matrix(np.stack([o[:3, :3] for o in offsets])).mean().as_matrix()
-    e3, ez, et, ey, ec = [], [], [], [], []
-    for k, P in poses.items():
-        X, B = P @ C, boxes[k]
-        local = B[:3, :3].T @ (X[:3, 3] - B[:3, 3])
-        rotvec = Rotation.from_matrix(B[:3, :3].T @ X[:3, :3]).as_rotvec()
-        tilt = rotvec[:2]
-        e3.append(np.linalg.norm(local))
-        ez.append(abs(local[2]))
-        et.append(np.degrees(np.linalg.norm(tilt)))
-        ey.append(np.degrees(abs(rotvec[2])))
-        ec.append(np.linalg.norm(box_corners(X, size) - box_corners(B, size), axis=1).mean())
-    return float(np.mean(e3)), float(np.mean(ez)), float(np.mean(et)), float(np.mean(ey)), float(np.mean(ec))
 
 
 def _smoothed_poses(inst: InstanceTrack, times: np.ndarray, config: SmoothingConfig,
@@ -131,14 +98,14 @@ def main() -> None:
         for inst in registered.instances:
             if inst.num_valid < 3 or inst.point_frames is None:
                 continue
-            matched = _matching_box_poses(inst, train_scene, registered)
+            matched = matching_box_poses(inst, train_scene, registered)
             if matched is None:
                 continue
             boxes, size = matched
             per_variant = {}
             for name, config in variants.items():
                 poses = {k: P for k, P in _smoothed_poses(inst, times, config, grounds[name]).items() if boxes[k] is not None}
-                per_variant[name] = _errors(poses, boxes, size) if len(poses) >= 3 else None
+                per_variant[name] = pose_errors(poses, boxes, size) if len(poses) >= 3 else None
             if all(v is not None for v in per_variant.values()):  # the same instances in every row
                 for name, v in per_variant.items():
                     results[name].append(v)

@@ -5,8 +5,8 @@ instance, static/dynamic decision, offset of the canonical origin), ns-eval's pe
 (frames lost, lost within 10 m of the ego, longest gap, tracks per object) and, over all seeds,
 the same per manoeuvre, with the preprocessing time per instance.
 
-    .venv/bin/python bench/bench_tracking.py --preset small --seeds 0 1 [--masks ground-truth]
-    .venv/bin/python bench/bench_tracking.py --preset hard --seeds 100 101 102 103 --out T.md
+    .venv/bin/python -m bench.bench_tracking --preset small --seeds 0 1 [--masks ground-truth]
+    .venv/bin/python -m bench.bench_tracking --preset hard --seeds 100 101 102 103 --out T.md
 
 Uses the same frames as training (the dataparser's split) and the same preprocessing as
 ``ns-train idsplat`` (masks from lidar motion; ``--masks ground-truth``: the generator's 2D masks).
@@ -26,7 +26,7 @@ from idsplat_ns.instances.modes import instance_tracks_for_mode
 from idsplat_ns.instances.runner import PreprocessConfig
 from idsplat_ns.model.trajectories import InstanceTrajectories
 
-from _streets import parse_settings, street_arguments, training_streets  # bench/ is on the path when run as a script
+from bench.streets import parse_settings, street_arguments, training_streets
 
 
 def _object_rows(scene, tracks) -> list[str]:

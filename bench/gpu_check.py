@@ -16,8 +16,8 @@ embedding, CNN decoder 32/3/2, lidar head) renders one 1920x1280 camera and a 16
 batch, an L1 loss on each, backward, one Adam step. MCMC relocation, SSIM and the data loader
 are not in it: a lower bound of the paper configuration's step.
 
-    python bench/gpu_check.py --out OUT --gsplat-build          # on the GPU machine
-    .venv/bin/python bench/gpu_check.py --out /tmp/g --device cpu --quick   # smoke test here
+    python -m bench.gpu_check --out OUT --gsplat-build          # on the GPU machine
+    .venv/bin/python -m bench.gpu_check --out /tmp/g --device cpu --quick   # smoke test here
 """
 
 from __future__ import annotations
@@ -38,13 +38,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from bench.bench_rasterizer import make_scene
+from idsplat_ns.render import rasterize_camera, rasterize_lidar
+
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-
-sys.path.insert(0, str(REPO / "bench"))
-
-from bench_rasterizer import make_scene  # noqa: E402
-from idsplat_ns.render import rasterize_camera, rasterize_lidar  # noqa: E402
 
 T0 = time.perf_counter()
 DEADLINE = [math.inf]  # seconds since T0 after which no new measurement starts (--torch-deadline-s)

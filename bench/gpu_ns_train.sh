@@ -43,7 +43,7 @@ $PY -m idsplat_ns.data.synthetic.cli --preset "$PRESET" --seed "$SEED" --out "$I
     --workers "$(nproc)" --quiet || exit 1
 stamp "street $PRESET $SEED generated"
 if [ -n "${LIDAR_AGAINST:-}" ]; then  # a source tree of another revision: time its lidar batch beside this one
-    $PY bench/bench_lidar_render.py --method idsplat --preset "$PRESET" --seed "$SEED" --threads 2 \
+    $PY -m bench.bench_lidar_render --method idsplat --preset "$PRESET" --seed "$SEED" --threads 2 \
         --rounds "${LIDAR_ROUNDS:-2}" --batches "${LIDAR_BATCHES:-6}" \
         --against-tree "$LIDAR_AGAINST" --out "$OUT/lidar_render.md" >"$OUT/lidar_render.log" 2>&1
     stamp "lidar batch bench ended with $?"

@@ -42,5 +42,5 @@ case " $* " in
         $PY -c "from gsplat.cuda._backend import _C; print('gsplat compiled:', _C is not None)" || exit 1
         stamp "gsplat compiled" ;;
 esac
-PYTHONUNBUFFERED=1 $PY bench/pareto.py --work "$WORK" "$@" 2>&1 | tee "$OUT/pareto.log"
+PYTHONUNBUFFERED=1 $PY -m bench.pareto --work "$WORK" "$@" 2>&1 | tee "$OUT/pareto.log"
 stamp "pareto.py ended with ${PIPESTATUS[0]}"

@@ -57,7 +57,7 @@ stamp "Triton compositor parity tests ended with $? ($(tail -1 "$OUT/logs/triton
 
 if [ -n "$LIDAR_COMPOSITORS" ]; then  # LIDAR_COMPOSITORS="": no lidar batch bench
     # shellcheck disable=SC2086  # LIDAR_COMPOSITORS is a list
-    timeout 240 $PY bench/bench_lidar_render.py --method idsplat --preset "$PRESET" --seed "$SEED" --threads 2 \
+    timeout 240 $PY -m bench.bench_lidar_render --method idsplat --preset "$PRESET" --seed "$SEED" --threads 2 \
         --compositors $LIDAR_COMPOSITORS --rounds 2 --batches 6 --warmup 2 --out "$OUT/lidar_batch.md" >"$OUT/logs/lidar_batch.log" 2>&1
     stamp "lidar batch bench ended with $?"
     cat "$OUT/lidar_batch.md" 2>/dev/null
@@ -72,7 +72,7 @@ fi
 
 # shellcheck disable=SC2086  # VARIANTS is a list
 LEFT=$(( ${BUDGET_SECONDS:-560} - ($(date +%s) - T0) ))  # what the call has left; a killed run keeps its rows
-timeout "$(( LEFT > 30 ? LEFT : 30 ))" $PY bench/profile_train_step.py --method idsplat --preset "$PRESET" --seed "$SEED" \
+timeout "$(( LEFT > 30 ? LEFT : 30 ))" $PY -m bench.profile_train_step --method idsplat --preset "$PRESET" --seed "$SEED" \
     --start-step 100 --warmup 2 --steps "$STEPS" --rounds "$ROUNDS" --variants $VARIANTS --torch-profile "${TORCH_PROFILE_STEPS:-4}" \
     --out "$OUT/logs/steps" >"$OUT/logs/steps.log" 2>&1
 stamp "training steps ended with $?"

@@ -10,8 +10,8 @@ preprocessing runs once before the points (``idsplat-preprocess``, timed apart) 
 point reads it from the cache. Then ``ns-eval``: PSNR, SSIM, DPSNR, MOTA@2m, lidar depth error
 (``lidar_depth``: median squared range error, m^2), and the Gaussians in the final checkpoint.
 
-    .venv/bin/python bench/pareto.py --seeds 100 --work outputs/pareto --table docs/pareto_table.md --plot docs/reports/2026-11-27-pareto.png
-    .venv/bin/python bench/pareto.py --points steps-300 steps-1000 --seeds 100 101 --work W
+    .venv/bin/python -m bench.pareto --seeds 100 --work outputs/pareto --table docs/pareto_table.md --plot docs/reports/2026-11-27-pareto.png
+    .venv/bin/python -m bench.pareto --points steps-300 steps-1000 --seeds 100 101 --work W
 
 Each training and evaluation runs on ``--threads`` threads (default 1: ``OMP_NUM_THREADS`` in their
 environment, which torch and the compiled compositor follow), so that several can share the
@@ -24,7 +24,7 @@ each street's tracks from ``DIR/<street>.json``, written elsewhere by
 ``idsplat-preprocess --data STREET --export DIR/<street>.json``; ``--camera-backend torch`` trains
 with the pure-torch camera rasterizer where gsplat has not been compiled:
 
-    python bench/pareto.py --seeds 100 --import-tracks tracks --camera-backend torch --points "steps-1500 (idsplat-fast)"
+    python -m bench.pareto --seeds 100 --import-tracks tracks --camera-backend torch --points "steps-1500 (idsplat-fast)"
 
 Results are stored per (street, point) in ``WORK/<street>/<point>/``; a point whose result.json
 exists is read, not trained again.
@@ -160,7 +160,7 @@ def run_point(street: Path, work: Path, name: str, threads: int, setup: dict | N
         return json.loads(result_file.read_text())
     out.mkdir(parents=True, exist_ok=True)
     job = json.dumps([str(street), str(out), steps, overrides])
-    cost = measured([sys.executable, __file__, "--train-one", job], threads)
+    cost = measured([sys.executable, "-m", "bench.pareto", "--train-one", job], threads)
     run_dir = out / "point" / "idsplat-fast" / "run"
     subprocess.run([*NS_EVAL, "--load-config", str(run_dir / "config.yml"), "--output-path",
                     str(out / "eval.json")], check=True, capture_output=True, env=threads_env(threads))  # fmt: skip
@@ -288,7 +288,6 @@ def main() -> None:
         street, out, steps, overrides = json.loads(args.train_one)
         train_point(Path(street), Path(out), int(steps), overrides)
         return
-    sys.path.insert(0, str(REPO))
     rows = []
     for seed in args.seeds:
         name = f"synth_{args.preset}_{seed}"

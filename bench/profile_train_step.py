@@ -5,14 +5,14 @@ On a GPU run it twice: plainly for the step time, and with ``CUDA_LAUNCH_BLOCKIN
 profile, where every kernel's time is charged to the Python call that launched it (without it,
 the time lands on whichever call waits for the GPU first).
 
-    .venv/bin/python bench/profile_train_step.py --method idsplat-fast --preset small --out /tmp/prof
-    CUDA_LAUNCH_BLOCKING=1 python bench/profile_train_step.py --method idsplat --seed 100 --out OUT
+    .venv/bin/python -m bench.profile_train_step --method idsplat-fast --preset small --out /tmp/prof
+    CUDA_LAUNCH_BLOCKING=1 python -m bench.profile_train_step --method idsplat --seed 100 --out OUT
 
 ``--variants`` times engines side by side instead of profiling: (camera backend, lidar compositor)
 pairs take turns on one trainer, ``--rounds`` times, and a table of median step times, their
 ratios to the first pair and the peak GPU memory is written (``step_times.md``)::
 
-    python bench/profile_train_step.py --method idsplat --seed 100 --start-step 100 --warmup 3 --steps 25 \
+    python -m bench.profile_train_step --method idsplat --seed 100 --start-step 100 --warmup 3 --steps 25 \
         --rounds 3 --variants tile-torch:torch tile-triton:triton gsplat:triton --out OUT
 """
 

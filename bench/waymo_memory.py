@@ -5,8 +5,8 @@ Builds a segment by re-framing the real test frame (../shared/data/waymo/pvps_da
 with full-size synthetic range images (TOP 64x2650, four 200x600 side lidars, two returns), then
 loads N frames in a fresh process per N and prints peak RSS and the tracemalloc peak.
 
-    .venv/bin/python bench/waymo_memory.py [--frames 20] [--ns 1 2 5 10]
-    .venv/bin/python bench/waymo_memory.py --frames 6 --by-lidars 5   # lidar sets x returns, 5 frames
+    .venv/bin/python -m bench.waymo_memory [--frames 20] [--ns 1 2 5 10]
+    .venv/bin/python -m bench.waymo_memory --frames 6 --by-lidars 5   # lidar sets x returns, 5 frames
 """
 
 from __future__ import annotations

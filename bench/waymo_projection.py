@@ -4,7 +4,7 @@ For each laser label visible in a camera, the 8 box corners go through load_segm
 pose, camera_to_world, intrinsics with distortion); the clamped axis-aligned rectangle is compared
 edge by edge with Waymo's projected_lidar_labels on the real test frame.
 
-    .venv/bin/python bench/waymo_projection.py
+    .venv/bin/python -m bench.waymo_projection
 """
 
 from __future__ import annotations

@@ -9,13 +9,9 @@ pytest.importorskip("nerfstudio")
 
 
 def _bench_pareto():
-    import importlib.util
-    from pathlib import Path
+    import importlib
 
-    spec = importlib.util.spec_from_file_location("pareto", Path(__file__).resolve().parents[1] / "bench" / "pareto.py")
-    pareto = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(pareto)
-    return pareto
+    return importlib.import_module("bench.pareto")  # the repository root is on the path under python -m pytest
 
 
 def test_the_cpu_presets_are_the_points_measured_in_bench_pareto():

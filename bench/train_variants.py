@@ -1,6 +1,7 @@
 """Train and evaluate named variants of ``idsplat-fast`` on one street with the plain commands a
-user would type (each printed before it runs), and print their results side by side. Shared by
-``bench_sensor_fidelity.py`` and ``bench_deformation.py``."""
+user would type (each printed before it runs; built by :mod:`idsplat_ns.batch.commands`, as
+``idsplat-batch`` builds them), and print their results side by side. Shared by
+``bench_sensor_fidelity``, ``bench_deformation``, ``bench_exposure`` and ``bench_rule_dpsnr``."""
 
 from __future__ import annotations
 
@@ -13,7 +14,15 @@ from pathlib import Path
 
 import numpy as np
 
+from idsplat_ns.batch.commands import eval_command, split_user_options, train_command
+from idsplat_ns.batch.sequences import Sequence
+
 BIN = Path(sys.executable).parent
+
+
+def _installed(cmd: list[str]) -> list[str]:
+    """``cmd`` with its program taken from this interpreter's environment."""
+    return [str(BIN / cmd[0]), *cmd[1:]]
 
 
 def run(cmd: list[str]) -> float:
@@ -40,13 +49,11 @@ def train_and_evaluate(street: Path, name: str, output_dir: Path, steps: int, op
     timing = output_dir / name / "train_seconds.json"
     if not (skip_existing and eval_json.is_file()):
         if not (skip_existing and timing.is_file() and (run_dir / "config.yml").is_file()):
-            train_s = run([
-                str(BIN / "ns-train"), "idsplat-fast", "--vis", "tensorboard", "--output-dir", str(output_dir),
-                "--experiment-name", name, "--timestamp", "run", "--max-num-iterations", str(steps),
-                *options, *shlex.split(train_args), "idsplat-pandaset", "--data", str(street), *after_data,
-            ])
+            user = split_user_options(["--max-num-iterations", str(steps), *options, *shlex.split(train_args),
+                                       "idsplat-pandaset", *after_data])
+            train_s = run(_installed(train_command(Sequence(name, street), "idsplat-fast", user, output_dir)))
             timing.write_text(json.dumps({"train_s": train_s}))
-        run([str(BIN / "ns-eval"), "--load-config", str(run_dir / "config.yml"), "--output-path", str(eval_json)])
+        run(_installed(eval_command(run_dir / "config.yml", eval_json)))
     results = json.loads(eval_json.read_text())["results"]
     results["train_s"] = json.loads(timing.read_text())["train_s"] if timing.is_file() else float("nan")
     return results
