@@ -251,7 +251,7 @@ def test_tracks_are_lifted_from_their_own_points_with_the_pixel_each_lands_on(st
     hulls, erosion or the largest-cluster rule, so it keeps at least what painting keeps."""
     from idsplat_ns.instances.masks.lidar_motion import LidarMotionMaskSource
     from idsplat_ns.instances.lidar_motion_lifting import lift_track_points
-    from idsplat_ns.instances.lifting import LiftingConfig, lift_instances
+    from idsplat_ns.instances.lifting import LiftedInstances, LiftingConfig, lift_instances
 
     scene, _ = street
     config = LidarMotionConfig()
@@ -268,6 +268,7 @@ def test_tracks_are_lifted_from_their_own_points_with_the_pixel_each_lands_on(st
             frame_index = int(scene.frame_indices[o.frame])
             cluster = {tuple(p) for p in clusters[frame_index].points}
             assert all(tuple(p) in cluster for p in o.points)
+            assert o.seen_fraction == len(o.points) / len(clusters[frame_index].points)  # what the cameras kept
             for i in np.unique(o.image_ids):
                 image = scene.images[i]
                 assert scene.closest_sweep(image.time).frame_index == frame_index
@@ -275,6 +276,10 @@ def test_tracks_are_lifted_from_their_own_points_with_the_pixel_each_lands_on(st
                 proj = image.project(o.points[sel])
                 assert proj.valid.all()
                 np.testing.assert_allclose(proj.uv, o.uv[sel], atol=1e-3)
+    own.save(tmp_path / "lifted.npz")  # the share kept travels through the stage cache
+    again = LiftedInstances.load(tmp_path / "lifted.npz")
+    assert [o.seen_fraction for v in again.observations.values() for o in v] == \
+        [o.seen_fraction for v in own.observations.values() for o in v]
     n_own = sum(len(o.points) for v in own.observations.values() for o in v)
     n_painted = sum(len(o.points) for v in painted.observations.values() for o in v)
     assert n_own >= n_painted

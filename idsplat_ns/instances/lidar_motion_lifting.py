@@ -6,7 +6,9 @@ a car behind a pedestrian in one camera hands the pedestrian the points inside t
 hull, and the mask erosion and the largest-cluster rule trim a partly seen car further. Here each
 cluster becomes the instance's observation at its sweep's frame as it is; every point takes the
 first image of that frame it lands in (its pixel is where registration reads colours and
-features), and points no camera sees are dropped, as painting would drop them.
+features), and points no camera sees are dropped, as painting would drop them; each observation
+records the share of its cluster that was kept (``seen_fraction``): a vehicle passing beside the
+ego is cut by the cameras' field of view, and registration must not take the cut for its end.
 """
 
 from __future__ import annotations
@@ -58,7 +60,8 @@ def lift_track_points(scene: Scene, mask_dir: Path, labels: dict[int, str], conf
                 uv[take] = pixels_inside(proj.uv[take], image)
             seen = image_ids >= 0
             if seen.sum() >= config.min_points:
-                obs.append(InstanceObservation(position[f], pts[seen], image_ids[seen], uv[seen], times[seen].astype(np.float64)))
+                obs.append(InstanceObservation(position[f], pts[seen], image_ids[seen], uv[seen], times[seen].astype(np.float64),
+                                               seen_fraction=float(seen.mean())))
         if obs:
             observations[tid] = sorted(obs, key=lambda o: o.frame)
     return LiftedInstances({k: labels.get(k, "object") for k in observations}, observations)

@@ -76,6 +76,10 @@ class InstanceObservation:
     times: Optional[np.ndarray] = None
     """[N] float64 seconds: when the lidar ray of each point was fired (a sweep takes 0.1 s, in
     which a car at 12 m/s moves 1.2 m). None where unknown: the frame's time is used."""
+    seen_fraction: Optional[float] = None
+    """Share of the instance's lidar points at this frame that a camera sees (the rest are not
+    kept: they have no pixel). Known where the lidar gave the whole instance (lidar-motion
+    lifting); None where only the camera's part is known."""
 
 
 @dataclass
@@ -98,6 +102,8 @@ class LiftedInstances:
                 arrays[f"{iid}_{o.frame}_uv"] = o.uv
                 if o.times is not None:
                     arrays[f"{iid}_{o.frame}_times"] = o.times
+                if o.seen_fraction is not None:
+                    arrays[f"{iid}_{o.frame}_seen_fraction"] = np.float64(o.seen_fraction)
         save_npz(path, arrays, index)
 
     @classmethod
@@ -109,10 +115,14 @@ class LiftedInstances:
             labels[iid] = entry["label"]
             observations[iid] = [
                 InstanceObservation(f, data[f"{iid}_{f}_points"], data[f"{iid}_{f}_image_ids"], data[f"{iid}_{f}_uv"],
-                                    data.get(f"{iid}_{f}_times"))
+                                    data.get(f"{iid}_{f}_times"), _optional_float(data.get(f"{iid}_{f}_seen_fraction")))
                 for f in entry["frames"]
             ]
         return cls(labels, observations)
+
+
+def _optional_float(value) -> Optional[float]:
+    return None if value is None else float(value)
 
 
 def erode_instance_map(ids: np.ndarray, radius: int) -> np.ndarray:  # ids: [H, W] uint16

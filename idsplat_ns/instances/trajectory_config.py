@@ -4,7 +4,7 @@ each pass of the track builder (:mod:`idsplat_ns.instances.trajectory_passes`)."
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Literal, Optional
 
 from idsplat_ns.instances.heading_flips import HeadingFlipConfig
 from idsplat_ns.instances.registration import RegistrationConfig
@@ -48,6 +48,20 @@ class TrajectoryConfig:
     that that deviation in either frame makes over their baseline, times the time extrapolated
     (motion_prior.prediction_gate). Two frames 0.2 s apart, one slid 1.1 m along a car's flat
     side, put the frame before them 1.7 m from the prediction."""
+    first_pass_min_seen_fraction: Optional[float] = 0.9
+    """Ours, with the chain only: the first pass leaves to the chain the observations of which the
+    cameras see less than this share of the instance's lidar points (known for lidar-motion
+    instances; the rest has no pixel and is not kept). A bus passing beside the ego is cut by the
+    cameras' field of view to 15 % of its length; registered whole-set first, the cut slid along
+    its flat side by the length cut off at fitness 1.0, while the chain places it from the
+    motion's prediction. Cut views the chain cannot place are registered against the whole set
+    after it (a car overtaking the ego shows a sliver at first). None: every observation in the
+    first pass (the paper)."""
+    cut_view_min_vehicle_length: float = 7.0
+    """Metres: ``first_pass_min_seen_fraction`` applies to instances whose class is at least this
+    long (trucks, buses: ``amodal_centre.DEFAULT_CLASS_SIZES``). A cut view slides by about the
+    length cut off; a car's slide stays under its length and the smoother takes most of it out,
+    while the chain's constant-velocity prediction misplaces a car finishing a turn."""
     motion_outliers: bool = True
     """Ours, with the chain only: before chaining, first-pass registrations further than
     ``chain_max_deviation`` from the constant-velocity prediction of their two nearest registered

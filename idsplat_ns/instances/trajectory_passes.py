@@ -46,11 +46,19 @@ def place_by_centroids(b: TrackBuilder, config: TrajectoryConfig) -> None:
         b.fitness[o.frame] = 1.0
 
 
-def register_densest_first(b: TrackBuilder, config: TrajectoryConfig) -> None:
-    """The paper's pass: each frame, densest first, registered against the whole canonical set."""
-    if b.features is None:
-        raise ValueError("registration needs point features (pass the extractor's output, or use method='centroid')")
-    for o in densest_first(b):
+def _cut(b: TrackBuilder, o, config: TrajectoryConfig) -> bool:
+    """Whether the observation is a long vehicle's view of which the cameras kept less than
+    ``first_pass_min_seen_fraction`` (see ``cut_view_min_vehicle_length``)."""
+    least = config.first_pass_min_seen_fraction
+    if least is None or o.seen_fraction is None or o.seen_fraction >= least:
+        return False
+    size = typical_size(b.label) if b.label else None
+    return size is not None and size[0] >= config.cut_view_min_vehicle_length
+
+
+def _register_against_all(b: TrackBuilder, observations: list, config: TrajectoryConfig) -> None:
+    """Each observation, in order, registered against the whole canonical set (growing)."""
+    for o in observations:
         result = register(b.points(), b.chunk_features(), o.points, b.features_of(o.frame), config.registration,
                           b.chunk_sensors(), b.sensor_at(o.frame))
         b.fitness[o.frame] = result.fitness
@@ -58,10 +66,20 @@ def register_densest_first(b: TrackBuilder, config: TrajectoryConfig) -> None:
             b.accept(o, result.transform)
 
 
+def register_densest_first(b: TrackBuilder, config: TrajectoryConfig) -> None:
+    """The paper's pass: each frame, densest first, registered against the whole canonical set;
+    with the chain, views the cameras cut are left to it (``TrajectoryConfig.first_pass_min_seen_fraction``)."""
+    if b.features is None:
+        raise ValueError("registration needs point features (pass the extractor's output, or use method='centroid')")
+    chained = config.chain_neighbours > 0 and b.times is not None
+    _register_against_all(b, [o for o in densest_first(b) if not (chained and _cut(b, o, config))], config)
+
+
 def chain_registrations(b: TrackBuilder, config: TrajectoryConfig) -> None:
     """Frames that failed, registered against their nearest registered neighbours; with
     ``motion_outliers``, first-pass registrations the motion disagrees with are dropped first and
-    left to the chain. Outliers twice: the first pass's slides, then the chain's own (its first
+    left to the chain. Views the cameras cut that the chain could not place then get the paper's
+    whole-set registration. Outliers twice: the first pass's slides, then the chain's own (its first
     frames lean on the densest view, which may itself be the slid one). The chain runs again only
     when the second look dropped a frame: with nothing changed it would retry the same
     registrations (deterministic) and fail them again."""
@@ -72,6 +90,8 @@ def chain_registrations(b: TrackBuilder, config: TrajectoryConfig) -> None:
         if again and not dropped:
             break
         _chain_once(b, config)
+        if not again:  # cut views the chain could not place: the paper's registration, then the second look
+            _register_against_all(b, [o for o in densest_first(b) if not b.valid[o.frame] and _cut(b, o, config)], config)
 
 
 def _chain_once(b: TrackBuilder, config: TrajectoryConfig) -> None:
