@@ -27,7 +27,8 @@ from pathlib import Path
 from idsplat_ns.batch.commands import RUN_TIMESTAMP, eval_command, split_user_options, train_command
 from idsplat_ns.batch.sequences import Sequence
 
-BIN = Path(sys.executable).parent
+from bench.train_variants import installed
+
 METHOD = "idsplat-fast"
 SMALL = ["--pipeline.model.num-random-points", "2000", "--pipeline.model.max-lidar-points", "8000"]
 
@@ -50,10 +51,10 @@ def by_hand(streets: list[Path], options: list[str], work: Path) -> float:
     total = 0.0
     for street in streets:
         train = train_command(Sequence(street.name, street), METHOD, split_user_options(list(options)), out)
-        total += _timed([str(BIN / train[0]), *train[1:]], env, work / "hand.log")
+        total += _timed(installed(train), env, work / "hand.log")
         config = out / street.name / METHOD / RUN_TIMESTAMP / "config.yml"
         evaluate = eval_command(config, out / f"{street.name}.json")
-        total += _timed([str(BIN / evaluate[0]), *evaluate[1:]], env, work / "hand.log")
+        total += _timed(installed(evaluate), env, work / "hand.log")
     return total
 
 
@@ -62,8 +63,8 @@ def batch(streets: list[Path], options: list[str], work: Path, num_cpus: int) ->
     env = {**os.environ, "IDSPLAT_CACHE": str(work / "cache")}
     listing = work / "sequences.txt"
     listing.write_text("".join(f"{s}\n" for s in streets))
-    return _timed([str(BIN / "idsplat-batch"), "--sequences", str(listing), "--output-dir", str(work / "out"),
-                   "--method", METHOD, "--num-cpus", str(num_cpus), *options], env, work / "batch.log")
+    return _timed(installed(["idsplat-batch", "--sequences", str(listing), "--output-dir", str(work / "out"),
+                   "--method", METHOD, "--num-cpus", str(num_cpus), *options]), env, work / "batch.log")
 
 
 def main() -> None:
@@ -103,7 +104,7 @@ def main() -> None:
     median = statistics.median(row[3] for row in rows)
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     machine = f"{platform.machine()}, {os.cpu_count()} cores, load average {load:.1f} at the end"
-    command = "bench/bench_batch.py " + " ".join(sys.argv[1:])
+    command = "python -m bench.bench_batch " + " ".join(sys.argv[1:])
     if args.markdown:
         print(f"\n`{command}` ({args.streets} tiny streets, {args.steps} steps; {machine})\n")
         print("| repeat | by hand [s] | idsplat-batch [s] | ratio |\n|---:|---:|---:|---:|")

@@ -19,7 +19,6 @@ import json
 import os
 import shlex
 import subprocess
-import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -30,7 +29,8 @@ from idsplat_ns.batch.commands import eval_command, split_user_options, train_co
 from idsplat_ns.batch.sequences import Sequence
 from idsplat_ns.nerfstudio.builtin_scene import builtin_street
 
-BIN = Path(sys.executable).parent
+from bench.train_variants import installed
+
 COLUMNS = (
     ("psnr", "PSNR"), ("ssim", "SSIM"), ("dpsnr", "DPSNR"), ("mota@2m", "MOTA@2m"), ("motp@2m", "MOTP@2m"),
     ("recall@2m", "recall@2m"), ("objects_frames_lost_near", "lost < 10 m"), ("objects_lost_over_3_frames", "gaps > 3"),
@@ -59,9 +59,9 @@ def train_and_evaluate(preset: str, seed: int, mode: str, args: argparse.Namespa
         user = split_user_options(["--max-num-iterations", str(args.steps), "--pipeline.datamanager.instance-mode", mode,
                                    *shlex.split(args.train_args), "idsplat-pandaset"])
         train = train_command(Sequence(name, street), "idsplat-fast", user, args.output_dir)
-        train_s = _run([str(BIN / train[0]), *train[1:]], env)
+        train_s = _run(installed(train), env)
         evaluate = eval_command(run_dir / "config.yml", eval_json)
-        _run([str(BIN / evaluate[0]), *evaluate[1:]], env)
+        _run(installed(evaluate), env)
     results = json.loads(eval_json.read_text())["results"]
     results["train_s"] = train_s
     return results

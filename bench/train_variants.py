@@ -20,8 +20,8 @@ from idsplat_ns.batch.sequences import Sequence
 BIN = Path(sys.executable).parent
 
 
-def _installed(cmd: list[str]) -> list[str]:
-    """``cmd`` with its program taken from this interpreter's environment."""
+def installed(cmd: list[str]) -> list[str]:
+    """``cmd`` with its program taken from this interpreter's environment (the project's venv)."""
     return [str(BIN / cmd[0]), *cmd[1:]]
 
 
@@ -35,7 +35,7 @@ def run(cmd: list[str]) -> float:
 
 def synth_street(data_dir: Path, preset: str, seed: int, *extra: str) -> None:
     """``idsplat-synth`` into ``data_dir`` (a cache hit when the street exists)."""
-    run([str(BIN / "idsplat-synth"), "--preset", preset, "--seed", str(seed), *extra, "--out", str(data_dir), "--quiet"])
+    run(installed(["idsplat-synth", "--preset", preset, "--seed", str(seed), *extra, "--out", str(data_dir), "--quiet"]))
 
 
 def train_and_evaluate(street: Path, name: str, output_dir: Path, steps: int, options: list[str], train_args: str = "",
@@ -51,9 +51,9 @@ def train_and_evaluate(street: Path, name: str, output_dir: Path, steps: int, op
         if not (skip_existing and timing.is_file() and (run_dir / "config.yml").is_file()):
             user = split_user_options(["--max-num-iterations", str(steps), *options, *shlex.split(train_args),
                                        "idsplat-pandaset", *after_data])
-            train_s = run(_installed(train_command(Sequence(name, street), "idsplat-fast", user, output_dir)))
+            train_s = run(installed(train_command(Sequence(name, street), "idsplat-fast", user, output_dir)))
             timing.write_text(json.dumps({"train_s": train_s}))
-        run(_installed(eval_command(run_dir / "config.yml", eval_json)))
+        run(installed(eval_command(run_dir / "config.yml", eval_json)))
     results = json.loads(eval_json.read_text())["results"]
     results["train_s"] = json.loads(timing.read_text())["train_s"] if timing.is_file() else float("nan")
     return results
