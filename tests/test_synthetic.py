@@ -342,3 +342,24 @@ def test_presets_scale_up():
     assert sizes == sorted(sizes) and PRESETS["small"].num_frames >= 30
     for p in PRESETS.values():
         assert 6.0 <= p.ego_speed <= 10.0
+
+
+def test_five_camera_rig_adds_the_side_cameras(tmp_path: Path):
+    from idsplat_ns.data.pandaset import load_sequence
+    from idsplat_ns.data.synthetic import SIDE_CAMERA_NAMES
+    from idsplat_ns.data.synthetic.config import config_to_dict
+
+    assert "side_cameras" not in config_to_dict(TINY)["cameras"]  # three-camera streets keep their generator.json
+    segment = get_preset("segment")
+    assert (segment.num_frames, segment.lidar.azimuth_steps, segment.cameras.side_cameras) == (200, 2650, True)
+    five = dataclasses.replace(TINY, name="tiny5", num_frames=2,
+                               cameras=dataclasses.replace(TINY.cameras, side_cameras=True))
+    seq = generate_sequence(tmp_path, five, seed=3, progress=False, workers=1)
+    scene = load_sequence(seq)
+    assert scene.camera_names == list(CAMERA_NAMES + SIDE_CAMERA_NAMES)
+    # Each camera's optical axis, against the front camera's, at its mounting yaw (left positive).
+    axes = {cam: _pose_matrix(_json(seq / "camera" / cam / "poses.json")[0])[:3, 2] for cam in scene.camera_names}
+    front = axes["front_camera"]
+    for cam, yaw in zip(scene.camera_names, (0.0, 55.0, -55.0, 110.0, -110.0)):
+        turn = np.degrees(np.arctan2(np.cross(front[:2], axes[cam][:2]), np.dot(front[:2], axes[cam][:2])))
+        assert turn == pytest.approx(yaw, abs=0.5), cam

@@ -1,7 +1,9 @@
 """Configuration of the built-in synthetic street: sensor rig, sequence length and the presets.
 
 Every field has a default; the presets `tiny`, `small` and `bench` change only sizes, so the three
-show the same kind of street; `varied` and `hard` are `small`'s sensors with traffic drawn per seed. All lengths are metres, angles degrees, times seconds.
+show the same kind of street; `varied` and `hard` are `small`'s sensors with traffic drawn per seed;
+`segment` is the hard street at a real segment's size (200 frames, five cameras, 64 x 2,650 lidar).
+All lengths are metres, angles degrees, times seconds.
 """
 
 from __future__ import annotations
@@ -18,7 +20,11 @@ TRAFFIC_KINDS = ("fixed", "varied", "hard")
 """Values of ``SyntheticConfig.traffic``."""
 
 CAMERA_NAMES: tuple[str, ...] = ("front_camera", "front_left_camera", "front_right_camera")
-"""PandaSet names of the three simulated cameras, in the order they are rendered."""
+"""PandaSet names of the three front cameras every rig has, in the order they are rendered."""
+SIDE_CAMERA_NAMES: tuple[str, ...] = ("left_camera", "right_camera")
+"""PandaSet names of the two side cameras a five-camera rig adds (``CameraRigConfig.side_cameras``)."""
+SIDE_CAMERA_YAWS_DEG: tuple[float, float] = (110.0, -110.0)
+"""Mounting yaws of the side cameras: 20 deg of overlap with the front-left and front-right ones."""
 
 
 @dataclass(frozen=True)
@@ -64,6 +70,14 @@ class CameraRigConfig:
     """A miscalibrated camera, as real rigs have: the written pose of the front-left camera is turned
     by (about its vertical axis, about its horizontal axis) degrees in every frame, while its images
     are rendered from the true pose (0, 0: a perfect rig)."""
+    side_cameras: bool = False
+    """Also the two side cameras (``SIDE_CAMERA_NAMES``, yaws +/-110 deg): five cameras around the
+    front half, as a Waymo rig has."""
+
+
+def camera_names(rig: CameraRigConfig) -> tuple[str, ...]:
+    """The names of the rig's cameras, in the order they are rendered."""
+    return CAMERA_NAMES + (SIDE_CAMERA_NAMES if rig.side_cameras else ())
 
 
 @dataclass(frozen=True)
@@ -152,6 +166,16 @@ PRESETS: dict[str, SyntheticConfig] = {
         cameras=CameraRigConfig(image_width=640, image_height=384),
         lidar=LidarConfig(azimuth_steps=1800),
     ),
+    # A real segment's size, for timing preprocessing (issue 43): Waymo's 200 frames, five cameras
+    # and 64 beams x 2,650 columns; the hard street's traffic over 20 s; the small street's images.
+    "segment": SyntheticConfig(
+        name="segment",
+        num_frames=200,
+        traffic="hard",
+        num_cyclists=2,
+        cameras=CameraRigConfig(side_cameras=True),
+        lidar=LidarConfig(azimuth_steps=2650),
+    ),
 }
 
 
@@ -217,13 +241,15 @@ def config_to_dict(config: SyntheticConfig) -> dict:
         out["cameras"].pop("exposure_drift")
     if not any(config.cameras.calibration_error_deg):
         out["cameras"].pop("calibration_error_deg")
+    if not config.cameras.side_cameras:
+        out["cameras"].pop("side_cameras")
     return out
 
 
 def exposure_gain(rig: CameraRigConfig, camera: int, time: float, duration: float) -> float:
     """The gain of camera ``camera`` (its index in the rig) at ``time`` seconds of a ``duration``-second
     drive (see ``CameraRigConfig.exposure_drift``)."""
-    phase = 2.0 * np.pi * camera / len(rig.yaws_deg)
+    phase = 2.0 * np.pi * camera / len(camera_names(rig))
     return 1.0 + rig.exposure_drift * float(np.sin(2.0 * np.pi * time / max(duration, 1e-9) + phase))
 
 

@@ -21,10 +21,10 @@ from idsplat_ns.data.camera import RollingShutter
 from idsplat_ns.data.synthetic import writer
 from idsplat_ns.data.synthetic.camera_render import render_camera
 from idsplat_ns.data.synthetic.config import (
-    CAMERA_NAMES,
     MISCALIBRATED_CAMERA,
     SyntheticConfig,
     calibration_error,
+    camera_names,
     config_to_dict,
     exposure_gain,
     get_preset,
@@ -201,8 +201,8 @@ def _gps(world: World, t: float) -> dict:
     }
 
 
-def _make_folders(tmp: Path) -> None:
-    for cam in CAMERA_NAMES:
+def _make_folders(tmp: Path, config: SyntheticConfig) -> None:
+    for cam in camera_names(config.cameras):
         (tmp / "camera" / cam).mkdir(parents=True)
         (tmp / "idsplat_extras" / "instance_masks" / cam).mkdir(parents=True)
     for sub in ("lidar", "annotations/cuboids", "meta", "idsplat_extras/lidar_noreturn"):
@@ -255,7 +255,7 @@ def generate_sequence(
     tmp = out_dir / f".{final.name}.tmp-{os.getpid()}"
     if tmp.exists():
         shutil.rmtree(tmp)
-    _make_folders(tmp)
+    _make_folders(tmp, config)
     try:
         frames = _render_frames(config, seed, tmp, workers, progress)
         _write_sequence_files(config, seed, tmp, frames, record)

@@ -10,11 +10,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from idsplat_ns.data.synthetic.config import CAMERA_NAMES, SyntheticConfig
+from idsplat_ns.data.synthetic.config import SIDE_CAMERA_YAWS_DEG, SyntheticConfig, camera_names
 from idsplat_ns.data.synthetic.world import World
 
-CAMERA_MOUNTS = np.array([[1.60, 0.00, 1.55], [1.45, 0.45, 1.55], [1.45, -0.45, 1.55]])
-"""Camera positions in the ego frame (front, front-left, front-right)."""
+CAMERA_MOUNTS = np.array([[1.60, 0.00, 1.55], [1.45, 0.45, 1.55], [1.45, -0.45, 1.55],
+                          [0.90, 0.80, 1.55], [0.90, -0.80, 1.55]])
+"""Camera positions in the ego frame (front, front-left, front-right, left, right)."""
+SIDE_CAMERA_TIME_OFFSETS = (0.019, -0.015)
+"""Image time minus frame time of the left and right cameras (they fire later in the sweep)."""
+SIDE_CAMERA_GAINS = ((1.02, 0.97, 1.0), (0.98, 1.0, 1.03))
+"""RGB gains of the left and right cameras."""
 
 # Lidar axes in the ego frame: x_lidar = right = -y_ego, y_lidar = forward, z_lidar = up.
 EGO_FROM_LIDAR = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
@@ -69,11 +74,14 @@ class PinholeCamera:
 
 
 def cameras(config: SyntheticConfig) -> list[PinholeCamera]:
-    """The three cameras of the rig."""
+    """The cameras of the rig: the three front ones, and the two side ones where the rig has them."""
     rig = config.cameras
     fx = 0.5 * rig.image_width / np.tan(np.radians(rig.horizontal_fov_deg) / 2)
+    yaws = tuple(rig.yaws_deg) + SIDE_CAMERA_YAWS_DEG
+    offsets = tuple(rig.time_offsets) + SIDE_CAMERA_TIME_OFFSETS
+    gains = tuple(rig.color_gains) + SIDE_CAMERA_GAINS
     out = []
-    for i, name in enumerate(CAMERA_NAMES):
+    for i, name in enumerate(camera_names(rig)):
         out.append(
             PinholeCamera(
                 name=name,
@@ -83,10 +91,10 @@ def cameras(config: SyntheticConfig) -> list[PinholeCamera]:
                 fy=float(fx),
                 cx=rig.image_width / 2,
                 cy=rig.image_height / 2,
-                ego_from_camera=camera_rotation(rig.yaws_deg[i], rig.pitch_deg),
+                ego_from_camera=camera_rotation(yaws[i], rig.pitch_deg),
                 mount=CAMERA_MOUNTS[i],
-                time_offset=rig.time_offsets[i],
-                gain=np.asarray(rig.color_gains[i], dtype=np.float64),
+                time_offset=offsets[i],
+                gain=np.asarray(gains[i], dtype=np.float64),
             )
         )
     return out
