@@ -110,3 +110,18 @@ def test_sparse_or_single_frame_instances_are_not_scored():
     assert not is_stationary(one, StaticConversionConfig())
     few = [InstanceObservation(f, np.zeros((3, 3)) + f, np.zeros(3, np.int32), np.zeros((3, 2), np.float32)) for f in range(4)]
     assert len(world_overlap_fractions(few, 0.1, min_points=10)) == 0
+
+
+def test_near_other_clouds_matches_a_tree_of_the_others_per_cloud():
+    from scipy.spatial import cKDTree
+
+    from idsplat_ns.instances.static_conversion import near_other_clouds
+
+    rng = np.random.default_rng(4)
+    clouds = [rng.normal(size=(int(n), 3)) * 0.6 + rng.normal(size=3) * 0.3 for n in rng.integers(1, 120, 13)]
+    got = near_other_clouds(clouds, 0.1)
+    for k, cloud in enumerate(clouds):
+        others = cKDTree(np.concatenate([c for j, c in enumerate(clouds) if j != k]))
+        dist, _ = others.query(cloud, k=1, distance_upper_bound=0.1)
+        assert np.array_equal(got[k], np.isfinite(dist)), k
+    assert near_other_clouds([clouds[0]], 0.1)[0].sum() == 0 and near_other_clouds([], 0.1) == []

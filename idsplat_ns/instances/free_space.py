@@ -30,21 +30,39 @@ class _SweepRays:
         self.ranges = np.where(sweep.returned, sweep.ranges, np.inf)  # no return: free to the end
 
     def evidence(self, points: np.ndarray, config: LidarMotionConfig) -> tuple[int, int]:
-        """(free, occupied) counts of ``points`` [N, 3] as seen by this sweep.
+        """(free, occupied) counts of ``points`` [N, 3] as seen by this sweep."""
+        beyond, near = self.point_evidence(points, config)
+        return int(beyond.sum()), int(near.sum())
+
+    def point_evidence(self, points: np.ndarray, config: LidarMotionConfig) -> tuple[np.ndarray, np.ndarray]:
+        """Whether each of ``points`` [N, 3] is free [N] and occupied [N] as seen by this sweep.
 
         The few rays nearest in direction decide together: free only when every one passes beyond
         the point (a single grazing ray beside a thin pole must not call it free), occupied when
         any ends near it."""
         offset = points - self.origin
         dist = np.linalg.norm(offset, axis=1)
-        gap, idx = self.tree.query(offset / dist[:, None], k=4, distance_upper_bound=config.max_direction_error)
+        # Threads: one query holds the points of every cluster tested against this sweep.
+        gap, idx = self.tree.query(offset / dist[:, None], k=4, distance_upper_bound=config.max_direction_error,
+                                   workers=-1)
         found = np.isfinite(gap)  # [N, 4]
         r = np.where(found, self.ranges[np.minimum(idx, len(self.ranges) - 1)], np.nan)
         d = dist[:, None]
         seen = found.any(1)
         beyond = np.where(found, r > d + config.free_margin, True).all(1) & seen
         near = (found & (np.abs(r - d) <= config.free_margin)).any(1)
-        return int(beyond.sum()), int(near.sum())
+        return beyond, near
+
+    def evidence_of_sets(self, point_sets: list[np.ndarray], config: LidarMotionConfig) -> np.ndarray:
+        """(free, occupied) counts [S, 2] of each of ``point_sets`` ([N_i, 3]) as seen by this
+        sweep, in one query."""
+        if not point_sets:
+            return np.zeros((0, 2), np.int64)
+        beyond, near = self.point_evidence(np.concatenate(point_sets), config)
+        ends = np.cumsum([len(p) for p in point_sets])
+        per_point = np.stack([beyond, near], axis=1).astype(np.int64)
+        totals = np.concatenate([np.zeros((1, 2), np.int64), np.cumsum(per_point, axis=0)])
+        return totals[ends] - totals[np.r_[0, ends[:-1]]]
 
 
 class EvidenceSweeps:
@@ -74,13 +92,11 @@ def _free_share(free: int, occupied: int, config: LidarMotionConfig) -> float:
 def score_clusters(clusters_per_sweep: list[list[MotionCluster]], evidence: EvidenceSweeps, config: LidarMotionConfig) -> None:
     """Set each cluster's free-space motion score from the sweeps at the evidence offsets."""
     for k, clusters in enumerate(clusters_per_sweep):
-        others = evidence.around(k, config.evidence_offsets_s)
-        for cluster in clusters:
-            free = occupied = 0
-            for j in others:
-                f, o = evidence.rays(j).evidence(cluster.points, config)
-                free, occupied = free + f, occupied + o
-            cluster.score = _free_share(free, occupied, config)
+        counts = np.zeros((len(clusters), 2), np.int64)  # free, occupied
+        for j in evidence.around(k, config.evidence_offsets_s):
+            counts += evidence.rays(j).evidence_of_sets([c.points for c in clusters], config)
+        for cluster, (free, occupied) in zip(clusters, counts):
+            cluster.score = _free_share(int(free), int(occupied), config)
 
 
 def motion_compensated_scores(tracks: list[MotionTrack], evidence: EvidenceSweeps, config: LidarMotionConfig) -> None:
@@ -90,6 +106,9 @@ def motion_compensated_scores(tracks: list[MotionTrack], evidence: EvidenceSweep
     near 0, covers all its points: no evidence (NaN); one whose centroid drifts as the ego passes
     it leaves a strip that reads occupied."""
     times = evidence.times
+    # Per evidence sweep, the points each cluster leaves there: one query of that sweep for all.
+    left_at: dict[int, list[tuple[MotionCluster, np.ndarray]]] = {}
+    scored: list[MotionCluster] = []
     for track in tracks:
         if len(track.clusters) < 2:
             continue
@@ -98,14 +117,18 @@ def motion_compensated_scores(tracks: list[MotionTrack], evidence: EvidenceSweep
             continue
         velocity = np.gradient(np.stack([c.centroid[:2] for c in track.clusters]), t, axis=0)  # [C, 2]
         for cluster, v in zip(track.clusters, velocity):
+            scored.append(cluster)
             tree = cKDTree(cluster.points[:, :2])
-            free = occupied = 0
             for j in evidence.around(cluster.frame, config.evidence_offsets_s):
                 shift = v * (times[j] - times[cluster.frame])
                 gap, _ = tree.query(cluster.points[:, :2] - shift, distance_upper_bound=config.self_cover_radius)
                 left = cluster.points[~np.isfinite(gap)]
-                if len(left) == 0:
-                    continue
-                f, o = evidence.rays(j).evidence(left, config)
-                free, occupied = free + f, occupied + o
-            cluster.moved_score = _free_share(free, occupied, config)
+                if len(left):
+                    left_at.setdefault(j, []).append((cluster, left))
+    counts = {id(c): np.zeros(2, np.int64) for c in scored}  # free, occupied
+    for j, pairs in left_at.items():
+        for (cluster, _), c in zip(pairs, evidence.rays(j).evidence_of_sets([left for _, left in pairs], config)):
+            counts[id(cluster)] += c
+    for cluster in scored:
+        free, occupied = counts[id(cluster)]
+        cluster.moved_score = _free_share(int(free), int(occupied), config)

@@ -60,7 +60,8 @@ class GroundConfig:
                                f"max-slope >= 0; got {self.cell_rank}, {self.min_cells}, {self.iterations}, {self.max_slope}")
 
 
-def _cell_keys(xy: np.ndarray, cell: float) -> np.ndarray:  # xy: [N, 2] -> [N] int64
+def cell_keys(xy: np.ndarray, cell: float) -> np.ndarray:  # xy: [N, 2] -> [N] int64
+    """One sortable integer per ``cell``-metre ground cell of each point."""
     ij = np.floor(xy / cell).astype(np.int64)
     return (ij[:, 0] << 32) + (ij[:, 1] & 0xFFFFFFFF)  # two's complement in the low word
 
@@ -88,6 +89,26 @@ def _lowest_per_cell(keys: np.ndarray, z: np.ndarray, count: int) -> tuple[np.nd
     return keys[keep], z[keep]
 
 
+def cell_heights(point_sets: Iterable[np.ndarray], cell: float, rank: int) -> tuple[np.ndarray, np.ndarray]:
+    """Sorted keys [C] (:func:`cell_keys`) of the cells that points of ``point_sets`` (chunks of
+    world points [N_i, 3], one per sweep) fall in, and each cell's ``rank``-th lowest height [C]
+    (the highest there is in a cell with fewer points). Each chunk is reduced to its ``rank`` + 1
+    lowest points per cell first, so time and memory follow the cells, not the points."""
+    keys, heights = [], []
+    for points in point_sets:
+        points = np.asarray(points, np.float64)
+        if len(points) == 0:
+            continue
+        k, z = _lowest_per_cell(cell_keys(points[:, :2], cell), points[:, 2], rank + 1)
+        keys.append(k)
+        heights.append(z)
+    if not keys:
+        return np.zeros(0, np.int64), np.zeros(0)
+    k, z = _lowest_per_cell(np.concatenate(keys), np.concatenate(heights), rank + 1)
+    starts, ends = _run_bounds(k)
+    return k[starts], z[np.minimum(starts + rank, ends - 1)]
+
+
 class GroundSurface:
     """Cell heights of the lidar points, queried as a locally fitted ground plane."""
 
@@ -102,22 +123,8 @@ class GroundSurface:
         """From world points given in chunks (one per sweep: [N_i, 3]); each chunk is reduced to
         its lowest points per cell first, so memory follows the cells, not the points."""
         config = config or GroundConfig()
-        count = config.cell_rank + 1
-        keys, heights = [], []
-        for points in point_sets:
-            points = np.asarray(points, np.float64)
-            if len(points) == 0:
-                continue
-            k, z = _lowest_per_cell(_cell_keys(points[:, :2], config.cell_size), points[:, 2], count)
-            keys.append(k)
-            heights.append(z)
-        if not keys:
-            return cls(np.zeros((0, 2)), np.zeros(0), config)
-        k, z = _lowest_per_cell(np.concatenate(keys), np.concatenate(heights), count)
-        starts, ends = _run_bounds(k)
-        # The rank-th lowest, or the highest there is in a cell with fewer points.
-        pick = np.minimum(starts + config.cell_rank, ends - 1)
-        return cls(_key_centres(k[starts], config.cell_size), z[pick], config)
+        keys, heights = cell_heights(point_sets, config.cell_size, config.cell_rank)
+        return cls(_key_centres(keys, config.cell_size), heights, config)
 
     @classmethod
     def from_sweeps(cls, sweeps: Iterable, config: GroundConfig | None = None) -> GroundSurface:

@@ -3,7 +3,8 @@ users with no Grounded-SAM-2 files or no GPU).
 
 1. **Ground**: each 0.5 m cell's height is a low rank of the points of all sweeps falling in it (the
    road is seen wherever a car has moved away); points more than ``min_height`` above it are kept.
-2. **Clusters**: DBSCAN (scikit-learn) of each sweep's kept points; clusters of object size survive.
+2. **Clusters**: DBSCAN (scikit-learn) of each sweep's kept points, merged into 0.1 m voxels first
+   (voxel_dbscan.py); clusters of object size survive.
 3. **Free space** (free_space.py): a cluster point seen at time t is tested against sweeps
    ``evidence_offsets_s`` before and after: the ray of that sweep nearest in direction to the point
    either ends near it (occupied then: static evidence), passes beyond it or returns nothing (free
@@ -39,31 +40,21 @@ from idsplat_ns.data.lidar import LidarSweep
 from idsplat_ns.data.scene import Scene
 from idsplat_ns.errors import IDSplatError
 from idsplat_ns.instances.free_space import EvidenceSweeps, motion_compensated_scores, score_clusters
+from idsplat_ns.instances.ground import cell_heights, cell_keys
 from idsplat_ns.instances.motion_tracks import LidarMotionConfig, MotionCluster, MotionTrack
+from idsplat_ns.instances.voxel_dbscan import voxel_dbscan
 
 
 def ground_heights(sweeps: list[LidarSweep], cell: float, rank: int) -> tuple[np.ndarray, np.ndarray]:
     """Sorted cell keys [C] and their ground heights [C] from all sweeps' returned points."""
-    pts = np.concatenate([s.points for s in sweeps])
-    keys = _cell_keys(pts[:, :2], cell)
-    order = np.lexsort((pts[:, 2], keys))
-    keys, z = keys[order], pts[order, 2]
-    starts = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
-    counts = np.diff(np.r_[starts, len(keys)])
-    pick = starts + np.minimum(rank, counts - 1)
-    return keys[starts], z[pick]
-
-
-def _cell_keys(xy: np.ndarray, cell: float) -> np.ndarray:  # xy: [N, 2] -> [N] int64
-    ij = np.floor(xy / cell).astype(np.int64)
-    return (ij[:, 0] << 32) + (ij[:, 1] & 0xFFFFFFFF)
+    return cell_heights((s.points for s in sweeps), cell, rank)
 
 
 def object_points(sweep: LidarSweep, ground_keys: np.ndarray, ground_z: np.ndarray, config: LidarMotionConfig):
     """World points [M, 3] and times [M] of a sweep that stand above the ground, within range."""
     ret = sweep.returned & (sweep.ranges <= config.max_range)
     pts, times = sweep.origins[ret] + sweep.directions[ret] * sweep.ranges[ret, None], sweep.times[ret]
-    idx = np.clip(np.searchsorted(ground_keys, _cell_keys(pts[:, :2], config.ground_cell)), 0, len(ground_keys) - 1)
+    idx = np.clip(np.searchsorted(ground_keys, cell_keys(pts[:, :2], config.ground_cell)), 0, len(ground_keys) - 1)
     height = pts[:, 2] - ground_z[idx]
     keep = (height > config.min_height) & (height < config.max_height)
     return pts[keep], times[keep]
@@ -71,11 +62,9 @@ def object_points(sweep: LidarSweep, ground_keys: np.ndarray, ground_z: np.ndarr
 
 def cluster_sweep(points: np.ndarray, times: np.ndarray, frame: int, config: LidarMotionConfig) -> list[MotionCluster]:
     """Object-sized DBSCAN clusters of one sweep's above-ground points."""
-    from sklearn.cluster import DBSCAN
-
     if len(points) < config.min_points:
         return []
-    labels = DBSCAN(eps=config.cluster_eps, min_samples=config.cluster_min_samples).fit_predict(points)
+    labels = voxel_dbscan(points, config.cluster_eps, config.cluster_min_samples, config.cluster_voxel)
     out = []
     for lab in np.unique(labels[labels >= 0]):
         sel = labels == lab

@@ -33,6 +33,9 @@ class LidarMotionConfig:
     """DBSCAN neighbourhood radius, metres."""
     cluster_min_samples: int = 5
     """DBSCAN core-point neighbour count."""
+    cluster_voxel: float = 0.1
+    """Metres: points are clustered as voxels of this side, weighted by their point counts
+    (voxel_dbscan.py), so that a dense sweep costs what its surfaces cost; 0: every point."""
     min_points: int = 15
     """Clusters with fewer points are dropped."""
     max_extent: float = 22.0

@@ -73,6 +73,10 @@ class PreprocessConfig:
     """Coordinated-turn smoothing settings (paper defaults); None skips the stage."""
     amodal: AmodalCentreConfig = field(default_factory=AmodalCentreConfig)
     """Canonical origins at the middle of the whole vehicle (ours; see instances/amodal_centre.py)."""
+    workers: int = 0
+    """Processes that register and smooth instances side by side: 0, one per CPU core once the
+    scene has a few hundred instance-frames (instances/process_pool.py); 1, all in this process.
+    The tracks do not depend on it (nor do the caches)."""
 
 
 @dataclass
@@ -210,7 +214,7 @@ def run_preprocessing(
                          "version": REGISTRATION_VERSION})
     tracks, cached = _cached_file(
         cache_dir / f"registration-{reg_key}.npz",
-        lambda: estimate_trajectories(scene, lifted, features, config.trajectory, progress),
+        lambda: estimate_trajectories(scene, lifted, features, config.trajectory, progress, config.workers),
         lambda r, p: r.save(p), InstanceTracks.load)
     tracks.metadata.update({"mask_source": masks.source})
     timings.append(StageTiming("registration", time.perf_counter() - t0, cached, config.trajectory.method))
@@ -233,7 +237,7 @@ def run_preprocessing(
         smoothing = config.smoothing
         tracks, cached = _cached_file(
             cache_dir / f"smoothing-{smooth_key}.npz",
-            lambda: smooth_tracks(tracks, smoothing, ground_surface(scene, smoothing)),
+            lambda: smooth_tracks(tracks, smoothing, ground_surface(scene, smoothing), config.workers, progress),
             lambda r, p: r.save(p), InstanceTracks.load)
         timings.append(StageTiming("smoothing", time.perf_counter() - t0, cached))
 

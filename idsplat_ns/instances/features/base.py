@@ -38,6 +38,11 @@ class PointFeatures:
     colors: dict[ObsKey, np.ndarray]
     """[N, 3] uint8 RGB per (instance ID, frame); empty when the scene has no images."""
 
+    def of_instance(self, iid: int) -> "PointFeatures":
+        """The features (and colours) of instance ``iid``'s observations only."""
+        return PointFeatures(self.extractor, {k: v for k, v in self.features.items() if k[0] == iid},
+                             {k: v for k, v in self.colors.items() if k[0] == iid})
+
     def save(self, path: Path) -> None:
         arrays = {}
         for (iid, f), v in self.features.items():

@@ -15,6 +15,7 @@ from idsplat_ns.data.geometry import interpolate_poses
 from idsplat_ns.data.scene import Scene
 from idsplat_ns.instances.amodal_centre import box_heading, travel_direction
 from idsplat_ns.instances.ground import GroundSurface
+from idsplat_ns.instances.process_pool import SMOOTHING_MIN_OBSERVATIONS, map_instances, resolve_workers
 from idsplat_ns.instances.smoothing.config import SmoothingConfig
 from idsplat_ns.instances.smoothing.observability import translation_covariances
 from idsplat_ns.instances.smoothing.smoother import SmoothedTrajectory, smooth_trajectory
@@ -74,9 +75,11 @@ def smooth_instance(inst: InstanceTrack, times: np.ndarray, config: SmoothingCon
                              None if ground is None else ground.heights_at)
 
 
-def smooth_tracks(tracks: InstanceTracks, config: SmoothingConfig, ground: Optional[GroundSurface] = None) -> InstanceTracks:
+def smooth_tracks(tracks: InstanceTracks, config: SmoothingConfig, ground: Optional[GroundSurface] = None,
+                  workers: int = 1, progress: bool = False) -> InstanceTracks:
     """Replace each dynamic instance's poses by smoothed ones at the frame times (valid within the
-    measured span).
+    measured span), in ``workers`` processes (0: one per core for a large scene; process_pool.py):
+    the tracks do not depend on it.
 
     Each registration is placed at its points' mean ray time (``config.measurement_times``), not
     the frame's: the rays that hit a car are fired up to half a sweep away from the frame time,
@@ -85,25 +88,35 @@ def smooth_tracks(tracks: InstanceTracks, config: SmoothingConfig, ground: Optio
     its own ray time (``config.repose_points``), which also undoes the car's motion during the
     sweep, as the oracle does with the annotated boxes.
     """
-    out = []
     times = np.asarray(tracks.frame_times, np.float64)
-    for inst in tracks.instances:
-        meas = registration_times(inst, times, config)
-        sm = smooth_instance(inst, meas, config, ground)
-        lo, hi = sm.span
-        slack = float(np.max(np.abs(meas - times)))  # frame times lie at most this far outside [lo, hi]
-        valid = (meas >= lo) & (meas <= hi)
-        frame_poses = np.array(sm.poses, dtype=np.float64, copy=True)  # states at the measurement times
-        if slack > 0 and valid.any():
-            valid = (times >= meas[valid].min() - slack) & (times <= meas[valid].max() + slack)
-            for k in np.flatnonzero(valid):
-                frame_poses[k] = sm.pose_at(float(times[k]), margin=slack)
-        # Points of measurements the smoother rejects were placed by a wrong registration.
-        inst = inst.keep_points_of_frames(sm.inliers) if config.drop_outlier_points else inst
-        if config.repose_points and inst.point_frames is not None:
-            inst = inst.with_points_posed_by(_poses_at_point_times(sm, inst, meas, slack))
-        out.append(replace(inst, poses=frame_poses, valid=valid, measured_valid=inst.valid))
+    sizes = [int(inst.num_valid) for inst in tracks.instances]
+    out = map_instances(smooth_instance_track, (times, config, ground), tracks.instances,
+                        resolve_workers(workers, len(sizes), sum(sizes), SMOOTHING_MIN_OBSERVATIONS), sizes, "smoothing",
+                        progress)
     return replace(tracks, instances=out, metadata={**tracks.metadata, "smoothed": True})
+
+
+def smooth_instance_track(
+    shared: tuple[np.ndarray, SmoothingConfig, Optional[GroundSurface]],  # frame times [F], settings, ground
+    inst: InstanceTrack,
+) -> InstanceTrack:
+    """One dynamic instance of :func:`smooth_tracks`, smoothed."""
+    times, config, ground = shared
+    meas = registration_times(inst, times, config)
+    sm = smooth_instance(inst, meas, config, ground)
+    lo, hi = sm.span
+    slack = float(np.max(np.abs(meas - times)))  # frame times lie at most this far outside [lo, hi]
+    valid = (meas >= lo) & (meas <= hi)
+    frame_poses = np.array(sm.poses, dtype=np.float64, copy=True)  # states at the measurement times
+    if slack > 0 and valid.any():
+        valid = (times >= meas[valid].min() - slack) & (times <= meas[valid].max() + slack)
+        for k in np.flatnonzero(valid):
+            frame_poses[k] = sm.pose_at(float(times[k]), margin=slack)
+    # Points of measurements the smoother rejects were placed by a wrong registration.
+    inst = inst.keep_points_of_frames(sm.inliers) if config.drop_outlier_points else inst
+    if config.repose_points and inst.point_frames is not None:
+        inst = inst.with_points_posed_by(_poses_at_point_times(sm, inst, meas, slack))
+    return replace(inst, poses=frame_poses, valid=valid, measured_valid=inst.valid)
 
 
 def _poses_at_point_times(
