@@ -4,8 +4,8 @@ all of them off at once), run on built-in
 streets no rule was tuned on (seeds 100-109, fixed before any result was seen), self-supervised
 with the generator's ground-truth 2D masks. Per variant and street: MOTA@2m and MOTP@2m of the
 moving vehicles (the observed protocol of ``eval/trajectory_eval.py``, as ``bench_tracking.py``),
-the mean box-corner error of the moving vehicles' final poses at the training frames (the
-matching and errors of ``bench_smoothed_poses.py``) and the stage seconds. Prints a markdown
+the mean box-corner error of the moving vehicles' final poses at the training frames
+(``tracking_quality.evaluate``) and the stage seconds. Prints a markdown
 table with a verdict per rule (see ``_verdict``) and writes the per-street results to ``--json``.
 
     nice -n 5 env OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 .venv/bin/python -m bench.bench_rule_ablation \\
@@ -34,18 +34,15 @@ from pathlib import Path
 
 import numpy as np
 
-from idsplat_ns.eval.instance_pose_errors import match_instance
 from idsplat_ns.eval.tracking import TrackingMetrics, aggregate
-from idsplat_ns.eval.trajectory_eval import flatten_metrics, tracking_summary
+from idsplat_ns.eval.trajectory_eval import flatten_metrics
 from idsplat_ns.instances.cache import hash_json
 from idsplat_ns.instances.masks.config import MaskConfig
-from idsplat_ns.instances.modes import ground_truth_masks
-from idsplat_ns.instances.runner import PreprocessConfig, run_preprocessing
+from idsplat_ns.instances.runner import PreprocessConfig
 from idsplat_ns.instances.trajectory_passes import TRACK_PASSES
-from idsplat_ns.model.trajectories import InstanceTrajectories
 
 from bench.streets import setting_of, street_arguments, training_streets
-from bench.box_errors import matching_box_poses, pose_errors
+from bench.tracking_quality import evaluate
 
 RESULTS_VERSION = 1  # bumped when what a stored (variant, street) result holds changes
 MOTA_TOL = 0.002  # a street's MOTA@2m counts as worse/better beyond this
@@ -168,49 +165,6 @@ def variant_configs(base: PreprocessConfig) -> dict[str, tuple[str, PreprocessCo
     out["no-tilt-limit-rescore"] = ("registration", RULE_BY_NAME["no-rescore"].off(RULE_BY_NAME["no-tilt-limit"].off(base)))
     out["paper"] = ("lifting", _paper(base))
     return out
-
-
-def _moving_vehiclepose_errors(tracks, train_scene) -> list[dict]:
-    """Per dynamic instance that follows a moving annotated vehicle (``match_instance``): its mean
-    box-corner, 3D and yaw errors at the training frames (``bench_smoothed_poses._errors``: after
-    the constant canonical-to-box offset that fits best)."""
-    out = []
-    for inst in tracks.instances:
-        if inst.num_valid < 3 or len(inst.canonical_points) == 0:
-            continue
-        index = match_instance(train_scene, inst)
-        if index is None:
-            continue
-        box = train_scene.tracks[index]
-        if not (box.moving and box.group == "vehicle"):
-            continue
-        boxes, size = matching_box_poses(inst, train_scene, tracks)
-        poses = {int(k): inst.poses[k] for k in np.flatnonzero(inst.valid) if boxes[k] is not None}
-        if len(poses) < 3:
-            continue
-        e3, _, _, ey, ec = pose_errors(poses, boxes, size)
-        out.append({"instance": int(inst.instance_id), "object": str(box.track_id), "frames": len(poses),
-                    "corner": ec, "error_3d": e3, "yaw_deg": ey})
-    return out
-
-
-def evaluate(scene, train: set[int], config: PreprocessConfig, cache: Path) -> dict:
-    """Preprocess one street with ``config`` and measure the result."""
-    train_scene = scene.subset(train)
-    t0 = time.perf_counter()
-    result = run_preprocessing(train_scene, ground_truth_masks(scene, config), cache, progress=False, verbose=False)
-    seconds = time.perf_counter() - t0
-    tracks = result.tracks
-    summary = tracking_summary(scene, InstanceTrajectories.from_instance_tracks(tracks).positions_at)
-    flat = flatten_metrics(summary)
-    errors = _moving_vehiclepose_errors(tracks, train_scene)
-    return {
-        "mota": flat.get("mota@2m", float("nan")), "motp": flat.get("motp@2m", float("nan")), "metrics": flat,
-        "summary": {f"{th:g}": asdict(m) for th, m in summary.items()},
-        "corner": float(np.mean([e["corner"] for e in errors])) if errors else float("nan"),
-        "instances": errors, "dynamic": len(tracks.instances), "static": len(tracks.static_instances),
-        "seconds": seconds, "stages": [[t.name, t.seconds, t.cached] for t in result.timings],
-    }
 
 
 def _verdict(d_mota: float, mota_counts: tuple[int, int], d_corner: float, corner_counts: tuple[int, int]) -> str:
