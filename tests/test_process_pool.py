@@ -59,3 +59,15 @@ def test_registration_in_two_processes_gives_the_same_tracks():
     for a, b in zip(one.instances, two.instances):
         assert np.array_equal(a.poses, b.poses) and np.array_equal(a.valid, b.valid)
         assert np.array_equal(a.canonical_points, b.canonical_points)
+
+
+def test_negative_workers_end_in_one_line_before_any_work(capsys):
+    from idsplat_ns.cli.preprocess import main
+    from idsplat_ns.instances.runner import PreprocessConfig
+
+    with pytest.raises(IDSplatError, match="preprocess.workers"):
+        PreprocessConfig(workers=-1)
+    with pytest.raises(SystemExit) as exit_:
+        main(["--preprocess.workers", "-1", "--builtin-preset", "tiny"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert exit_.value.code == 2 and len(err) == 1 and "workers=-1" in err[0], err

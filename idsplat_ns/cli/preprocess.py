@@ -111,8 +111,7 @@ def parse_args(argv: list[str]) -> PreprocessArgs:
 
 def main(argv: Optional[list[str]] = None) -> None:
     """Console entry point."""
-    args = parse_args(sys.argv[1:] if argv is None else argv)
-    run_cli(lambda: preprocess(args))
+    run_cli(lambda: preprocess(parse_args(sys.argv[1:] if argv is None else argv)))  # settings' checks end in one line
 
 
 if __name__ == "__main__":

@@ -78,6 +78,10 @@ class PreprocessConfig:
     scene has a few hundred instance-frames (instances/process_pool.py); 1, all in this process.
     The tracks do not depend on it (nor do the caches)."""
 
+    def __post_init__(self) -> None:
+        if self.workers < 0:  # before any stage runs
+            raise IDSplatError(f"preprocess workers={self.workers}: choose 0 (one per core) or more ({cli_option('workers')})")
+
 
 @dataclass
 class StageTiming:
