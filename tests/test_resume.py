@@ -160,7 +160,11 @@ def test_kill_during_preprocessing_then_rerun_gives_the_same_cache(tiny_street: 
     command = [_bin("idsplat-preprocess"), "--data", str(tiny_street)]
 
     def results(cache: Path) -> list[Path]:
-        return sorted(p.relative_to(cache) for p in cache.rglob("*") if p.is_file() and TMP_MARK not in str(p))
+        while True:
+            try:
+                return sorted(p.relative_to(cache) for p in cache.rglob("*") if p.is_file() and TMP_MARK not in str(p))
+            except FileNotFoundError:  # a stage renamed its temporary folder while this walked it: look again
+                continue
 
     def run(cache: Path, kill: bool = False) -> None:
         env = {**os.environ, "IDSPLAT_CACHE": str(cache)}
