@@ -22,10 +22,14 @@ from __future__ import annotations
 import argparse
 import json
 import tempfile
+from dataclasses import replace
 from pathlib import Path
 
+import cv2
 import numpy as np
+import torch
 
+from idsplat_ns._compat.libusb import import_open3d
 from idsplat_ns.data.lidar import LidarSweep
 from idsplat_ns.data.pandaset import load_sequence
 from idsplat_ns.data.scene import Scene
@@ -65,16 +69,11 @@ def every_nth_column(sweep: LidarSweep, columns: int, step: int) -> LidarSweep:
 def cut(scene: Scene, frames: int, columns: int, step: int) -> Scene:
     """The first ``frames`` frames of ``scene``, every ``step``-th lidar column kept."""
     first = scene.subset(set(scene.frame_indices[:frames].tolist()))
-    first.lidar = [every_nth_column(s, columns, step) for s in first.lidar]
-    return first
+    return replace(first, lidar=[every_nth_column(s, columns, step) for s in first.lidar])
 
 
 def child(args: argparse.Namespace) -> None:
     """One preprocessing of one cut on a fresh cache; prints ``RESULT <json>``."""
-    import torch
-    import cv2
-    from idsplat_ns._compat.libusb import import_open3d
-
     torch.set_num_threads(args.threads)
     cv2.setNumThreads(args.threads)
     import_open3d()  # before the timing (about 1.5 s)

@@ -54,11 +54,11 @@ def test_free_space_evidence_passing_ending_and_occluded_rays():
     config = LidarMotionConfig()
     probe = np.array([[1.0, 0.05, 0.02], [1.0, -0.1, 0.03], [1.0, 0.2, -0.04]])
     probe /= np.linalg.norm(probe, axis=1, keepdims=True)
-    assert rays.evidence(probe * 10.0, config) == (3, 0)  # in front of the wall: the rays passed through
-    assert rays.evidence(probe * (20.0 / probe[:, :1]), config) == (0, 3)  # on the wall: occupied
-    assert rays.evidence(probe * 30.0, config) == (0, 0)  # behind it: occluded, no evidence
+    assert rays.evidence_of_sets([probe * 10.0], config)[0].tolist() == [3, 0]  # in front of the wall: the rays passed through
+    assert rays.evidence_of_sets([probe * (20.0 / probe[:, :1])], config)[0].tolist() == [0, 3]  # on the wall: occupied
+    assert rays.evidence_of_sets([probe * 30.0], config)[0].tolist() == [0, 0]  # behind it: occluded, no evidence
     no_return = _SweepRays(_sweep(wall, returned=np.zeros(len(wall), bool)))
-    assert no_return.evidence(probe * 10.0, config) == (3, 0)  # nothing came back: free to the end
+    assert no_return.evidence_of_sets([probe * 10.0], config)[0].tolist() == [3, 0]  # nothing came back: free to the end
 
 
 def test_parts_of_one_object_merge_and_neighbours_do_not():

@@ -29,11 +29,6 @@ class _SweepRays:
         self.tree = cKDTree(sweep.directions)
         self.ranges = np.where(sweep.returned, sweep.ranges, np.inf)  # no return: free to the end
 
-    def evidence(self, points: np.ndarray, config: LidarMotionConfig) -> tuple[int, int]:
-        """(free, occupied) counts of ``points`` [N, 3] as seen by this sweep."""
-        beyond, near = self.point_evidence(points, config)
-        return int(beyond.sum()), int(near.sum())
-
     def point_evidence(self, points: np.ndarray, config: LidarMotionConfig) -> tuple[np.ndarray, np.ndarray]:
         """Whether each of ``points`` [N, 3] is free [N] and occupied [N] as seen by this sweep.
 
@@ -106,8 +101,8 @@ def motion_compensated_scores(tracks: list[MotionTrack], evidence: EvidenceSweep
     near 0, covers all its points: no evidence (NaN); one whose centroid drifts as the ego passes
     it leaves a strip that reads occupied."""
     times = evidence.times
-    # Per evidence sweep, the points each cluster leaves there: one query of that sweep for all.
-    left_at: dict[int, list[tuple[MotionCluster, np.ndarray]]] = {}
+    # Per evidence sweep, the points each scored cluster (by index) leaves there: one query of that sweep for all.
+    left_at: dict[int, list[tuple[int, np.ndarray]]] = {}
     scored: list[MotionCluster] = []
     for track in tracks:
         if len(track.clusters) < 2:
@@ -124,11 +119,10 @@ def motion_compensated_scores(tracks: list[MotionTrack], evidence: EvidenceSweep
                 gap, _ = tree.query(cluster.points[:, :2] - shift, distance_upper_bound=config.self_cover_radius)
                 left = cluster.points[~np.isfinite(gap)]
                 if len(left):
-                    left_at.setdefault(j, []).append((cluster, left))
-    counts = {id(c): np.zeros(2, np.int64) for c in scored}  # free, occupied
+                    left_at.setdefault(j, []).append((len(scored) - 1, left))
+    counts = np.zeros((len(scored), 2), np.int64)  # free, occupied
     for j, pairs in left_at.items():
-        for (cluster, _), c in zip(pairs, evidence.rays(j).evidence_of_sets([left for _, left in pairs], config)):
-            counts[id(cluster)] += c
-    for cluster in scored:
-        free, occupied = counts[id(cluster)]
+        index = [k for k, _ in pairs]
+        np.add.at(counts, index, evidence.rays(j).evidence_of_sets([left for _, left in pairs], config))
+    for cluster, (free, occupied) in zip(scored, counts):
         cluster.moved_score = _free_share(int(free), int(occupied), config)

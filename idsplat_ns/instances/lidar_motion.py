@@ -3,8 +3,8 @@ users with no Grounded-SAM-2 files or no GPU).
 
 1. **Ground**: each 0.5 m cell's height is a low rank of the points of all sweeps falling in it (the
    road is seen wherever a car has moved away); points more than ``min_height`` above it are kept.
-2. **Clusters**: DBSCAN (scikit-learn) of each sweep's kept points, merged into 0.1 m voxels first
-   (voxel_dbscan.py); clusters of object size survive.
+2. **Clusters**: DBSCAN of each sweep's kept points, as 0.1 m voxels weighted by their point
+   counts (voxel_dbscan.py); clusters of object size survive.
 3. **Free space** (free_space.py): a cluster point seen at time t is tested against sweeps
    ``evidence_offsets_s`` before and after: the ray of that sweep nearest in direction to the point
    either ends near it (occupied then: static evidence), passes beyond it or returns nothing (free

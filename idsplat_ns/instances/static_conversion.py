@@ -62,8 +62,7 @@ def world_overlap_fractions(
     points within ``distance`` of a point of the instance's other observations."""
     clouds = [o for o in observations if len(o.points)]
     near = near_other_clouds([o.points for o in clouds], distance)
-    by_id = {id(o): n for o, n in zip(clouds, near)}
-    return np.asarray([float(np.mean(by_id[id(o)])) for o in observations
+    return np.asarray([float(np.mean(n)) for o, n in zip(clouds, near)
                        if len(o.points) >= min_points and len(clouds) > 1], dtype=np.float64)
 
 
