@@ -15,8 +15,11 @@
 #    (bench/profile_train_step.py --variants; tile-torch:torch is the engine before the Triton
 #    compositor); median step time, ratio and peak GPU memory; then 4 steps of the last pair under
 #    torch.profiler (torch_profile.txt: device time by operator, host synchronisations a step).
+#    With AGAINST_TREE=DIR, another revision's engine (DIR holds its idsplat_ns and method_configs:
+#    git archive REV idsplat_ns method_configs | tar -x -C DIR) is timed first, with the same
+#    variants on its own trainer of the same street and seed (step_times_against.md).
 # Knobs (environment): PRESET, STEPS, ROUNDS, VARIANTS, LIDAR_COMPOSITORS ("" skips stage 3), GSPLAT=0
-# (no build, stage 4 skipped), STREET_WORKERS, TORCH_PROFILE_STEPS, BUDGET_SECONDS.
+# (no build, stage 4 skipped), STREET_WORKERS, TORCH_PROFILE_STEPS, BUDGET_SECONDS, AGAINST_TREE.
 # OUT receives summary.log, lidar_batch.md, step_times.md, step_times.json, torch_profile.txt and logs.tar.gz. Stage 5
 # stops BUDGET_SECONDS (560) after the start, with the rows timed so far.
 set -u
@@ -70,11 +73,27 @@ if [ -n "$BUILD" ]; then
     stamp "gsplat parity tests ended with $? ($(tail -1 "$OUT/logs/gsplat_tests.log"))"
 fi
 
+STEP_ARGS="--method idsplat --preset $PRESET --seed $SEED --start-step 100 --warmup 2 --steps $STEPS --rounds $ROUNDS"
+if [ -n "${AGAINST_TREE:-}" ]; then
+    [ -d "$AGAINST_TREE/idsplat_ns" ] || { stamp "AGAINST_TREE=$AGAINST_TREE has no idsplat_ns/"; exit 1; }
+    # Half of what the call has left. Run from inside the tree: `python -m` puts the working
+    # directory first on the path, so its idsplat_ns and method_configs are the ones imported, and
+    # this checkout (on PYTHONPATH) gives the bench scripts.
+    LEFT=$(( (${BUDGET_SECONDS:-560} - ($(date +%s) - T0)) / 2 ))
+    OUT_ABS=$(cd "$OUT" && pwd)
+    # shellcheck disable=SC2086  # STEP_ARGS and VARIANTS are lists
+    (cd "$AGAINST_TREE" && timeout "$(( LEFT > 30 ? LEFT : 30 ))" $PY -m bench.profile_train_step \
+        $STEP_ARGS --variants $VARIANTS --out "$OUT_ABS/logs/steps_against" >"$OUT_ABS/logs/steps_against.log" 2>&1)
+    stamp "training steps of $AGAINST_TREE's engine ended with $?"
+    cp "$OUT/logs/steps_against/step_times.md" "$OUT/step_times_against.md" 2>/dev/null
+    cp "$OUT/logs/steps_against/step_times.json" "$OUT/step_times_against.json" 2>/dev/null
+    cat "$OUT/step_times_against.md" 2>/dev/null || tail -30 "$OUT/logs/steps_against.log"
+fi
+
 # shellcheck disable=SC2086  # VARIANTS is a list
 LEFT=$(( ${BUDGET_SECONDS:-560} - ($(date +%s) - T0) ))  # what the call has left; a killed run keeps its rows
-timeout "$(( LEFT > 30 ? LEFT : 30 ))" $PY -m bench.profile_train_step --method idsplat --preset "$PRESET" --seed "$SEED" \
-    --start-step 100 --warmup 2 --steps "$STEPS" --rounds "$ROUNDS" --variants $VARIANTS --torch-profile "${TORCH_PROFILE_STEPS:-4}" \
-    --out "$OUT/logs/steps" >"$OUT/logs/steps.log" 2>&1
+timeout "$(( LEFT > 30 ? LEFT : 30 ))" $PY -m bench.profile_train_step $STEP_ARGS --variants $VARIANTS \
+    --torch-profile "${TORCH_PROFILE_STEPS:-4}" --out "$OUT/logs/steps" >"$OUT/logs/steps.log" 2>&1
 stamp "training steps ended with $?"
 cp "$OUT/logs/steps/step_times.md" "$OUT/logs/steps/step_times.json" "$OUT/logs/steps/torch_profile.txt" "$OUT/" 2>/dev/null
 cat "$OUT/step_times.md" 2>/dev/null || tail -30 "$OUT/logs/steps.log"

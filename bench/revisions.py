@@ -60,7 +60,9 @@ def run_child(script: str, cmd: list[str], tree: Path, threads: int) -> dict:
     first = [str(REPO)] if tree == REPO else [str(engine_only(tree)), str(REPO)]
     path = os.pathsep.join(first + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p])
     env = dict(os.environ, PYTHONPATH=path, OMP_NUM_THREADS=str(threads))
-    done = subprocess.run([sys.executable] + cmd, env=env, capture_output=True, text=True)
+    # Run from the engine's folder: `python -m` puts the working directory first on the path, so an
+    # idsplat_ns there would shadow the engine asked for.
+    done = subprocess.run([sys.executable] + cmd, env=env, capture_output=True, text=True, cwd=first[0])
     line = [x for x in done.stdout.splitlines() if x.startswith("RESULT ")]
     if done.returncode or not line:
         raise SystemExit(f"{script}: the run on {tree} failed:\n{done.stderr[-3000:]}")

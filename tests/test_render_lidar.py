@@ -189,6 +189,6 @@ def test_time_bins_with_their_own_gaussians():
                           az, torch.zeros(4), ray_bins=bins)  # fmt: skip
     torch.testing.assert_close(out.alpha[:, 0], torch.tensor([0.8, 0.0, 0.5, 0.7]))
     torch.testing.assert_close(out.features[:, 0], torch.tensor([0.8, 0.0, 1.0, 2.1]))
-    with pytest.raises(IDSplatError, match="per bin"):  # opacities per bin, features shared: refused
-        rasterize_lidar(means, quats, torch.full((2, 2, 3), 0.1), opacities, features[0], torch.eye(4).expand(2, 4, 4),
-                        az, torch.zeros(4), ray_bins=bins)  # fmt: skip
+    with pytest.raises(IDSplatError, match="per bin"):  # features of one Gaussian per bin for two: refused
+        rasterize_lidar(means, quats, torch.full((2, 2, 3), 0.1), opacities, features[:, :1],
+                        torch.eye(4).expand(2, 4, 4), az, torch.zeros(4), ray_bins=bins)  # fmt: skip

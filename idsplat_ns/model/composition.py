@@ -59,14 +59,15 @@ def unrotate_quats(R: Tensor, quats_world: Tensor) -> Tensor:
 
 def trajectory_index(instance_ids: Tensor, traj_ids: Tensor) -> Tensor:
     """Row of each Gaussian's instance in the trajectory arrays: [N] int64, -1 for the background
-    (ID 0) and for IDs without a trajectory."""
+    (ID 0) and for IDs without a trajectory. A search in the sorted IDs: no host read of a size."""
     ids = instance_ids.long()
     traj_ids = traj_ids.long().to(ids.device)
-    size = int(max(int(ids.max()) if ids.numel() else 0, int(traj_ids.max()) if traj_ids.numel() else 0)) + 1
-    lut = torch.full((size,), -1, dtype=torch.int64, device=ids.device)
-    lut[traj_ids] = torch.arange(len(traj_ids), device=ids.device)
-    lut[0] = -1  # ID 0 is the background, never an instance
-    return lut[ids.clamp_min(0)]
+    if traj_ids.numel() == 0:
+        return torch.full_like(ids, -1)
+    sorted_ids, order = torch.sort(traj_ids)
+    pos = torch.searchsorted(sorted_ids, ids).clamp_max(traj_ids.numel() - 1)
+    found = (sorted_ids.index_select(0, pos) == ids) & (ids > 0)  # ID 0 is the background, never an instance
+    return torch.where(found, order.index_select(0, pos), torch.full_like(ids, -1))
 
 
 def compose_gaussians(
@@ -140,3 +141,41 @@ def gaussian_velocities(
     r = row[dyn]
     moving = traj_linear[r] + torch.cross(traj_angular[r], means_world[dyn] - traj_t[r], dim=-1)
     return out.index_put((dyn,), moving)
+
+
+def compose_gaussians_at_times(
+    means: Tensor,  # [N, 3], or [K, N, 3] per time (a deformation), world (ID 0) or canonical (ID k > 0)
+    quats: Tensor,  # [N, 4] wxyz, any norm
+    instance_ids: Tensor,  # [N] int
+    traj_R: Tensor,  # [K, Z, 3, 3] canonical -> world rotation of each trajectory at each of K times
+    traj_t: Tensor,  # [K, Z, 3]
+    present: Tensor,  # [K, Z] bool
+    traj_ids: Tensor,  # [Z] int
+) -> tuple[Tensor, Tensor, Tensor]:
+    """:func:`compose_gaussians` with ``drop=False`` at K times in one batch of operations: world
+    means [K, N, 3], quaternions [K, N, 4] and ``keep`` [K, N] bool, row ``k`` equal to the
+    single-time composition at time ``k``. Every Gaussian keeps its row; absent ones hold finite
+    placeholder poses and ``keep`` False."""
+    k, n = traj_R.shape[0], instance_ids.shape[0]
+    means_k = means.expand(k, n, 3)
+    quats_k = quats.expand(k, n, 4)
+    keep = torch.ones(k, n, dtype=torch.bool, device=means.device)
+    dyn = torch.nonzero(instance_ids > 0).squeeze(-1)  # [M]
+    if dyn.numel() == 0:
+        return means_k, quats_k, keep
+    row = trajectory_index(instance_ids.index_select(0, dyn), traj_ids)  # [M], -1: no trajectory
+    z = traj_R.shape[1]
+    # Row -1 reads an appended False column: safe also when Z == 0.
+    present_pad = torch.cat([present.to(device=means.device, dtype=torch.bool),
+                             torch.zeros(k, 1, dtype=torch.bool, device=means.device)], dim=1)  # [K, Z + 1]
+    here = present_pad.index_select(1, torch.where(row < 0, z, row))  # [K, M]
+    keep = keep.index_copy(1, dyn, here)
+    if z == 0:
+        return means_k, quats_k, keep
+    r = row.clamp_min(0)  # absent or unknown rows take row 0's pose and are marked in ``keep``
+    R, t = traj_R.index_select(1, r), traj_t.index_select(1, r)  # [K, M, 3, 3], [K, M, 3]
+    moved_means = canonical_to_world(means_k.index_select(1, dyn), R, t)
+    moved_quats = quat_multiply(rotmat_to_quat(traj_R).index_select(1, r), quats.index_select(0, dyn)[None])
+    # index_copy: the static rows are copied once per time, the instance rows replaced; its backward
+    # is an index_fill and an index_select (no sort of indices).
+    return means_k.index_copy(1, dyn, moved_means), quats_k.index_copy(1, dyn, moved_quats), keep

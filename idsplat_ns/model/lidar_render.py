@@ -2,7 +2,7 @@
 
 A sweep's rays are fired over ~0.1 s from a moving sensor while instances move. The rays of a
 batch are split into K equal-width bins of their timestamps; for each bin the Gaussians are posed
-at the bin's centre time (``posed_at(t)``, e.g. :meth:`SceneModel.posed_gaussians`) and the sensor
+at the bin's centre time (all bins in one call, :meth:`SceneModel.posed_gaussians_at_times`) and the sensor
 is placed at the mean origin of the bin's rays with the sweep's rotation. Rays of different lidars
 (Waymo's five sit up to ~2 m apart) are binned apart, so each lidar is rendered from its own
 position. All (lidar, bin) groups are rendered by one :func:`~idsplat_ns.render.rasterize_lidar`
@@ -137,26 +137,34 @@ def ray_angles(
     return azimuth, elevation
 
 
-def render_lidar_rays(
-    posed_at: Callable[[float], dict],
-    rays: LidarRayBatch,
-    sensor_to_world: Tensor,  # [4, 4] sweep pose (its rotation is used; translation per bin)
-    num_time_bins: int = 4,
-    cutoff_ranges: Optional[Tensor] = None,  # [R] metres from each ray's own origin
-    **rasterizer_kwargs,
-) -> LidarRender:
-    """Render ``rays``: per-ray features [R, D], alpha [R, 1], range and median range [R, 1].
+@dataclass
+class PosedBins:
+    """World-posed Gaussians at the K time bins of a ray batch, one row set for every bin (N rows):
+    what changes with the time (means, orientations, presence) per bin, the rest shared."""
 
-    ``posed_at(t)`` returns world-posed activated Gaussians at time ``t`` (keys ``means``,
-    ``quats``, ``scales``, ``opacities``, ``features``). Ranges are measured from each ray's own
-    origin along its direction (first-order origin correction, see the module docstring); 0 where
-    nothing was hit. With ``cutoff_ranges`` the render also has ``alpha_before_cutoff`` [R, 1]: the
-    summed alphas of the Gaussians in front of each ray's cut-off (the line-of-sight loss).
-    ``rasterizer_kwargs`` go to :func:`rasterize_lidar` (resolutions, planes...).
-    """
-    r = rays.num_rays
-    if r == 0:
-        raise IDSplatError("render_lidar_rays: the ray batch is empty; sample at least one ray")
+    means: Tensor  # [K, N, 3] world
+    quats: Tensor  # [K, N, 4] wxyz
+    opacities: Tensor  # [K, N] activated; 0 where a Gaussian is absent at that bin's time
+    scales: Tensor  # [N, 3] activated (metres)
+    features: Tensor  # [N, D]
+
+
+@dataclass
+class _RayGroups:
+    """The rays of a batch split into (lidar, time bin) groups, each cast from its own position."""
+
+    centres: Tensor  # [K] float64 time-bin centres
+    group_ids: Tensor  # [G] int64 sensor rank * K + bin of each group
+    ray_group: Tensor  # [R] int64 group of each ray, 0..G-1
+    origins: Tensor  # [G, 3] mean origin of each group's rays
+    lidar_from_world: Tensor  # [4, 4] the sweep's rotation, placed at the first group's origin
+    along: Tensor  # [R, 1] along-ray offset of each ray's own origin from its group's
+    azimuth: Tensor  # [R] radians
+    elevation: Tensor  # [R] radians
+    margin: Optional[float]  # the cull's angular margin (None: culling off)
+
+
+def _ray_groups(rays: LidarRayBatch, sensor_to_world: Tensor, num_time_bins: int, rasterizer_kwargs: dict) -> _RayGroups:
     device = rays.origins.device
     bins, centres = time_bins(rays.times, num_time_bins)
     # One group per (lidar, time bin): each lidar is cast from its own position.
@@ -175,44 +183,111 @@ def render_lidar_rays(
     lidar_from_world = torch.eye(4, device=device, dtype=torch.float32)
     lidar_from_world[:3, :3] = rot.T
     lidar_from_world[:3, 3] = -rot.T @ origins[0].float()
-    dirs = rays.directions
     # Range from each ray's own origin = range from its group's position minus this along-ray offset.
-    along = ((rays.origins - origins[ray_group]) * dirs).sum(1, keepdim=True)
-    az, el = ray_angles(dirs, rot)
+    along = ((rays.origins - origins[ray_group]) * rays.directions).sum(1, keepdim=True)
+    az, el = ray_angles(rays.directions, rot)
     margin = None
     if rasterizer_kwargs.get("cull", True):
-        grid = {k: rasterizer_kwargs.get(k, _RASTERIZER_DEFAULTS[k]) for k in _GRID_ARGS}
-        margin = cull_margin(**grid)
-    posed_cache: dict[int, dict] = {}
-    per_group = []
-    for g, group in enumerate(group_ids.tolist()):
-        b = int(group % centres.numel())
-        if b not in posed_cache:  # the Gaussians are posed once per time bin, shared by the lidars
-            posed_cache[b] = posed_at(float(centres[b]))
-        posed = posed_cache[b]
-        if g > 0:  # seen from the first group's position, the group's Gaussians sit moved by this offset
-            posed = dict(posed, means=posed["means"] + (origins[0] - origins[g]).to(posed["means"].dtype))
-        if margin is not None and posed["means"].shape[0]:
-            # Only what the group's rays may reach is stacked (a time bin is a sector of a sweep):
-            # memory in proportion to the Gaussians seen, not to groups x all Gaussians.
-            mine = ray_group == g
-            seen = seen_by_rays(posed["means"].detach()[None], posed["scales"].detach(), lidar_from_world[None],
-                                az[mine].detach(), el[mine].detach(), torch.zeros_like(ray_group[mine]), margin)[0]  # fmt: skip
-            keep = torch.nonzero(seen & (posed["opacities"].detach() > ALPHA_MIN)).squeeze(1)
-            posed = {k: posed[k].index_select(0, keep) for k in _GAUSSIAN_KEYS}
-        per_group.append(posed)
+        margin = cull_margin(**{k: rasterizer_kwargs.get(k, _RASTERIZER_DEFAULTS[k]) for k in _GRID_ARGS})
+    return _RayGroups(centres, group_ids, ray_group, origins, lidar_from_world, along, az, el, margin)
+
+
+def _rasterize_groups(stacked: dict[str, Tensor], groups: _RayGroups, cutoff_ranges: Optional[Tensor],
+                      rasterizer_kwargs: dict) -> LidarRender:  # fmt: skip
+    """One rasterization of every group's Gaussians ([G, M, ...], culled already), ranges from
+    each ray's own origin."""
+    along = groups.along
     cut = None if cutoff_ranges is None else cutoff_ranges + along[:, 0]
-    stacked = _stack_groups(per_group)
-    # Culled above, group by group (or culling is off): the rasterizer need not test again.
+    num_groups = groups.group_ids.numel()
     out = rasterize_lidar(stacked["means"], stacked["quats"], stacked["scales"], stacked["opacities"],
-                          stacked["features"], lidar_from_world.expand(num_groups, 4, 4), az, el,
-                          ray_bins=ray_group, ray_cutoff=cut, **dict(rasterizer_kwargs, cull=False))  # fmt: skip
+                          stacked["features"], groups.lidar_from_world.expand(num_groups, 4, 4), groups.azimuth,
+                          groups.elevation, ray_bins=groups.ray_group, ray_cutoff=cut,
+                          **dict(rasterizer_kwargs, cull=False))  # fmt: skip
+    return _from_group_origins(out, groups)
+
+
+def _from_group_origins(out: LidarRender, groups: _RayGroups) -> LidarRender:
+    """Ranges measured from each ray's own origin instead of its group's (0 stays 0: no hit)."""
     hit = out.alpha > 0
     return replace(
         out,
-        range=torch.where(hit, out.range - along, out.range),
-        median_range=torch.where(hit, out.median_range - along, out.median_range),
+        range=torch.where(hit, out.range - groups.along, out.range),
+        median_range=torch.where(hit, out.median_range - groups.along, out.median_range),
     )
+
+
+def render_lidar_rays(
+    posed_at: Callable[[float], dict],
+    rays: LidarRayBatch,
+    sensor_to_world: Tensor,  # [4, 4] sweep pose (its rotation is used; translation per bin)
+    num_time_bins: int = 4,
+    cutoff_ranges: Optional[Tensor] = None,  # [R] metres from each ray's own origin
+    **rasterizer_kwargs,
+) -> LidarRender:
+    """Render ``rays``: per-ray features [R, D], alpha [R, 1], range and median range [R, 1].
+
+    ``posed_at(t)`` returns world-posed activated Gaussians at time ``t`` (keys ``means``,
+    ``quats``, ``scales``, ``opacities``, ``features``); the set may differ between times. Ranges
+    are measured from each ray's own origin along its direction (first-order origin correction,
+    see the module docstring); 0 where nothing was hit. With ``cutoff_ranges`` the render also has
+    ``alpha_before_cutoff`` [R, 1]: the summed alphas of the Gaussians in front of each ray's
+    cut-off (the line-of-sight loss). ``rasterizer_kwargs`` go to :func:`rasterize_lidar`
+    (resolutions, planes...). The reference of :func:`render_lidar_rays_binned`, which poses the
+    bins in one batch and is what training uses.
+    """
+    if rays.num_rays == 0:
+        raise IDSplatError("render_lidar_rays: the ray batch is empty; sample at least one ray")
+    grp = _ray_groups(rays, sensor_to_world, num_time_bins, rasterizer_kwargs)
+    posed_cache: dict[int, dict] = {}
+    per_group = []
+    for g, group in enumerate(grp.group_ids.tolist()):
+        b = int(group % grp.centres.numel())
+        if b not in posed_cache:  # the Gaussians are posed once per time bin, shared by the lidars
+            posed_cache[b] = posed_at(float(grp.centres[b]))
+        posed = posed_cache[b]
+        if g > 0:  # seen from the first group's position, the group's Gaussians sit moved by this offset
+            posed = dict(posed, means=posed["means"] + (grp.origins[0] - grp.origins[g]).to(posed["means"].dtype))
+        if grp.margin is not None and posed["means"].shape[0]:
+            # Only what the group's rays may reach is stacked (a time bin is a sector of a sweep):
+            # memory in proportion to the Gaussians seen, not to groups x all Gaussians.
+            mine = grp.ray_group == g
+            seen = seen_by_rays(posed["means"].detach()[None], posed["scales"].detach(), grp.lidar_from_world[None],
+                                grp.azimuth[mine].detach(), grp.elevation[mine].detach(),
+                                torch.zeros_like(grp.ray_group[mine]), grp.margin)[0]  # fmt: skip
+            keep = torch.nonzero(seen & (posed["opacities"].detach() > ALPHA_MIN)).squeeze(1)
+            posed = {k: posed[k].index_select(0, keep) for k in _GAUSSIAN_KEYS}
+        per_group.append(posed)
+    # Culled above, group by group (or culling is off): the rasterizer need not test again.
+    return _rasterize_groups(_stack_groups(per_group), grp, cutoff_ranges, rasterizer_kwargs)
+
+
+def render_lidar_rays_binned(
+    posed_at_times: Callable[[Tensor], PosedBins],
+    rays: LidarRayBatch,
+    sensor_to_world: Tensor,  # [4, 4] sweep pose (its rotation is used; translation per bin)
+    num_time_bins: int = 4,
+    cutoff_ranges: Optional[Tensor] = None,  # [R] metres from each ray's own origin
+    **rasterizer_kwargs,
+) -> LidarRender:
+    """:func:`render_lidar_rays` with the Gaussians of all time bins posed by one call,
+    ``posed_at_times(centres [K]) -> PosedBins``, and culled and gathered for all (lidar, bin)
+    groups at once by :func:`rasterize_lidar`: a fixed number of operations whatever the number
+    of bins and lidars, where the reference loops over them. The same render: each group keeps
+    the same Gaussians in the same order."""
+    if rays.num_rays == 0:
+        raise IDSplatError("render_lidar_rays: the ray batch is empty; sample at least one ray")
+    grp = _ray_groups(rays, sensor_to_world, num_time_bins, rasterizer_kwargs)
+    posed = posed_at_times(grp.centres.to(rays.origins.device))
+    bin_of = grp.group_ids % grp.centres.numel()  # [G] time bin of each group
+    shift = (grp.origins[:1] - grp.origins).to(posed.means.dtype)  # [G, 3]; seen from group 0's position
+    # The rasterizer culls each group by its own rays and gathers the kept Gaussians of every group
+    # at once (rasterize_lidar with per-bin means and opacities, shared scales and features).
+    cut = None if cutoff_ranges is None else cutoff_ranges + grp.along[:, 0]
+    out = rasterize_lidar(posed.means.index_select(0, bin_of) + shift[:, None], posed.quats.index_select(0, bin_of),
+                          posed.scales, posed.opacities.index_select(0, bin_of), posed.features,
+                          grp.lidar_from_world.expand(bin_of.numel(), 4, 4), grp.azimuth, grp.elevation,
+                          ray_bins=grp.ray_group, ray_cutoff=cut, **rasterizer_kwargs)  # fmt: skip
+    return _from_group_origins(out, grp)
 
 
 _GAUSSIAN_KEYS = ("means", "quats", "scales", "opacities", "features")

@@ -21,7 +21,6 @@ pixel's world-frame ray direction.
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 from typing import Optional, Sequence
 
@@ -29,11 +28,11 @@ import torch
 from torch import Tensor, nn
 
 from idsplat_ns.model.camera_shutter import ImageShutter
-from idsplat_ns.model.composition import compose_gaussians, gaussian_velocities
+from idsplat_ns.model.composition import compose_gaussians, compose_gaussians_at_times, gaussian_velocities
 from idsplat_ns.model.decoders import RGBDecoderCNN
 from idsplat_ns.model.gaussians import GaussianSet
 from idsplat_ns.model.lidar_head import LidarHead, LidarHeadOutput
-from idsplat_ns.model.lidar_render import LidarRayBatch, render_lidar_rays
+from idsplat_ns.model.lidar_render import LidarRayBatch, PosedBins, render_lidar_rays_binned
 from idsplat_ns.render import LidarRender, rasterize_camera
 from idsplat_ns.render.camera import CAMERA_BACKENDS
 
@@ -183,6 +182,26 @@ class SceneModel(nn.Module):
             out["velocities"] = velocities if drop_absent else velocities * keep[:, None]
         return out
 
+    def posed_gaussians_at_times(self, times: Tensor) -> PosedBins:  # times: [K] float64 seconds
+        """:meth:`posed_gaussians` with ``drop_absent=False`` at K times in one batch of operations
+        (a lidar batch's time bins): the trajectories are interpolated and the instances moved for
+        all K times together, the activations computed once."""
+        g = self.gaussians.activated()
+        ids = self.gaussians.instance_ids
+        k, n = times.shape[0], ids.shape[0]
+        opacities = g["opacities"][None].expand(k, n)
+        if self.trajectories is None:  # a static scene: every time sees the same Gaussians
+            return PosedBins(g["means"][None].expand(k, n, 3), g["quats"][None].expand(k, n, 4), opacities,
+                             g["scales"], g["features"])
+        R, t, present = self.trajectories.poses_at_times(times)
+        canonical = g["means"]
+        if self.deformation is not None:  # offsets at each time: [K, N, 3]
+            canonical = torch.stack([canonical + self.deformation.offsets(canonical, ids, times[i]) for i in range(k)])
+        means, quats, keep = compose_gaussians_at_times(canonical, g["quats"], ids, R, t, present,
+                                                        self.trajectories.instance_ids)  # fmt: skip
+        # Absent instances stay, transparent: the rasterizer drops opacity 0.
+        return PosedBins(means, quats, opacities * keep, g["scales"], g["features"])
+
     def render_camera(
         self,
         viewmat: Tensor,  # [4, 4] world-to-camera, OpenCV axes
@@ -230,11 +249,10 @@ class SceneModel(nn.Module):
         intensity and ray drop with the lidar head (see :func:`render_lidar_rays`)."""
         if self.lidar_head is None:
             raise RuntimeError("SceneModel.render_lidar: this model has no lidar head (a camera-only scene)")
-        # Activated once for all the time bins; an absent instance is transparent in a bin rather
-        # than gathered out of every per-Gaussian tensor (the rasterizer drops opacity 0).
-        posed_at = functools.partial(self.posed_gaussians, activated=self.gaussians.activated(), drop_absent=False)
-        render = render_lidar_rays(posed_at, rays, sensor_to_world, num_time_bins, cutoff_ranges=cutoff_ranges,
-                                   **rasterizer_kwargs)  # fmt: skip
+        # All time bins posed in one batch; an absent instance is transparent in a bin rather than
+        # gathered out of every per-Gaussian tensor (the rasterizer drops opacity 0).
+        render = render_lidar_rays_binned(self.posed_gaussians_at_times, rays, sensor_to_world, num_time_bins,
+                                          cutoff_ranges=cutoff_ranges, **rasterizer_kwargs)  # fmt: skip
         return render, self.lidar_head(render.features)
 
 

@@ -257,9 +257,6 @@ class InstanceTrajectories(nn.Module):
 
     # -- queries at a time -------------------------------------------------------------------
 
-    def _time_value(self, t: float | Tensor) -> float:
-        return float(t.detach().reshape(()).item()) if isinstance(t, Tensor) else float(t)
-
     @torch.no_grad()
     def positions_at(self, t: float) -> dict[int, np.ndarray]:
         """``{instance_id: canonical-frame origin in the world [3]}`` of the instances present at t."""
@@ -267,9 +264,12 @@ class InstanceTrajectories(nn.Module):
         ids = self.instance_ids.tolist()
         return {int(ids[k]): trans[k].double().cpu().numpy() for k in range(len(ids)) if bool(present[k])}
 
-    def present_at(self, t: float | Tensor) -> Tensor:  # -> [Z] bool
-        """Which instances exist at time ``t`` (seconds): inside their valid span (+ margin)."""
-        tv = self._time_value(t)
+    def present_at(self, t: float | Tensor) -> Tensor:  # -> [Z] bool, or [K, Z] for times [K]
+        """Which instances exist at time ``t`` (seconds; a float, a scalar tensor, or a tensor of K
+        times): inside their valid span (+ margin). Compared on the device: no host read of ``t``."""
+        tv = t.detach().to(self.frame_times.dtype) if isinstance(t, Tensor) else float(t)
+        if isinstance(tv, Tensor) and tv.dim() == 1:
+            tv = tv[:, None]
         has = self.span_first >= 0
         first = self.frame_times[self.span_first.clamp_min(0)]
         last = self.frame_times[self.span_last.clamp_min(0)]
@@ -290,6 +290,15 @@ class InstanceTrajectories(nn.Module):
         R, trans, present, _, _ = self._interpolate(t, velocities=False)
         return R, trans, present
 
+    def poses_at_times(self, times: Tensor) -> tuple[Tensor, Tensor, Tensor]:  # times: [K] seconds
+        """:meth:`poses_at` at K times in one batch of operations (a lidar batch's time bins):
+        ``R`` [K, Z, 3, 3], ``trans`` [K, Z, 3], ``present`` [K, Z] bool, each row ``k`` equal to
+        ``poses_at(times[k])``."""
+        if times.dim() != 1:
+            raise ValueError(f"poses_at_times: times must be one-dimensional [K], got shape {tuple(times.shape)}")
+        R, trans, present, _, _ = self._interpolate(times, velocities=False)
+        return R, trans, present
+
     def motion_at(self, t: float | Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
         """:meth:`poses_at` plus the instances' world-frame velocities at ``t``: ``(R, trans,
         present, linear [Z, 3] m/s, angular [Z, 3] rad/s)``. A point ``x`` of instance z moves at
@@ -298,47 +307,56 @@ class InstanceTrajectories(nn.Module):
         return self._interpolate(t, velocities=True)
 
     def _interpolate(self, t: float | Tensor, velocities: bool) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
+        """Poses (and velocities) at ``t``: a float or scalar tensor ([Z, ...] outputs), or a tensor
+        of K times ([K, Z, ...] outputs, one batch of operations for all of them)."""
+        batched = isinstance(t, Tensor) and t.dim() == 1
         present = self.present_at(t)
         Z = self.num_instances
         dtype, device = self.positions.dtype, self.positions.device
+        tdt = self.frame_times.dtype  # float64 unless the module was cast
+        t_k = (t.reshape(-1).to(device=device, dtype=tdt) if isinstance(t, Tensor)
+               else torch.tensor([float(t)], dtype=tdt, device=device))  # [K]
+        K = t_k.shape[0]
         if Z == 0:
-            empty = torch.zeros(0, 3, dtype=dtype, device=device)
-            return torch.zeros(0, 3, 3, dtype=dtype, device=device), empty, present, empty, empty
+            empty = torch.zeros(K, 0, 3, dtype=dtype, device=device)
+            R, trans = torch.zeros(K, 0, 3, 3, dtype=dtype, device=device), empty
+            return (R, trans, present, empty, empty) if batched else (R[0], trans[0], present, empty[0], empty[0])
         first = self.span_first.clamp_min(0)
         last = self.span_last.clamp_min(0)
-        # Left step of the bracketing segment, restricted to the instance's span.
-        tdt = self.frame_times.dtype  # float64 unless the module was cast
-        t_tensor = (t.reshape(()).to(device=device, dtype=tdt) if isinstance(t, Tensor)
-                    else torch.tensor(float(t), dtype=tdt, device=device))
-        k_global = torch.searchsorted(self.frame_times, t_tensor.detach().reshape(1), right=True) - 1
-        k0 = torch.minimum(k_global.expand_as(first), (last - 1).clamp_min(0))
-        k0 = torch.maximum(k0, first)
-        k1 = torch.minimum(k0 + 1, last)
+        # Left step of the bracketing segment, restricted to the instance's span: [K, Z].
+        k_global = torch.searchsorted(self.frame_times, t_k.detach(), right=True) - 1
+        k0 = torch.minimum(k_global[:, None], (last - 1).clamp_min(0)[None])
+        k0 = torch.maximum(k0, first[None])
+        k1 = torch.minimum(k0 + 1, last[None])
         t0, t1 = self.frame_times[k0], self.frame_times[k1]
         single = k1 == k0  # one valid step: constant pose
         dt = torch.where(single, torch.ones_like(t0), t1 - t0)
-        w = torch.where(single, torch.zeros_like(t0), (t_tensor - t0) / dt).to(dtype)  # [Z]
+        w = torch.where(single, torch.zeros_like(t0), (t_k[:, None] - t0) / dt).to(dtype)  # [K, Z]
 
         # Rows (z, k) of the [Z, F, ...] tables by index_select of the flattened table: its backward
         # is an index_add, advanced indexing's a sort (a kernel chain per call on CUDA).
         steps = self.positions.shape[1]
         zi = torch.arange(Z, device=device) * steps
-        r0, r1 = zi + k0, zi + k1
+        r0, r1 = (zi + k0).reshape(-1), (zi + k1).reshape(-1)  # [K Z]
         positions = self.positions.flatten(0, 1)
-        p0, p1 = positions.index_select(0, r0), positions.index_select(0, r1)
-        trans = p0 + w[:, None] * (p1 - p0)
+        p0, p1 = positions.index_select(0, r0).view(K, Z, 3), positions.index_select(0, r1).view(K, Z, 3)
+        trans = p0 + w[..., None] * (p1 - p0)
         base, deltas = self.base_rotations.flatten(0, 1), self.rotation_deltas.flatten(0, 1)
-        R0 = base.index_select(0, r0) @ so3_exp(deltas.index_select(0, r0))
-        R1 = base.index_select(0, r1) @ so3_exp(deltas.index_select(0, r1))
-        rel = so3_log(R0.transpose(-1, -2) @ R1)  # [Z, 3] geodesic from step k0 to k1
-        R = R0 @ so3_exp(w[:, None] * rel)
+        # Both ends of every segment through one exponential map.
+        ends = base.index_select(0, torch.cat([r0, r1])) @ so3_exp(deltas.index_select(0, torch.cat([r0, r1])))
+        R0, R1 = ends.view(2, K, Z, 3, 3).unbind(0)
+        rel = so3_log(R0.transpose(-1, -2) @ R1)  # [K, Z, 3] geodesic from step k0 to k1
+        R = R0 @ so3_exp(w[..., None] * rel)
         if not velocities:
-            return R, trans, present, trans, trans
-        # d/dt of R0 exp(w rel) is R [rel / dt]x: body rate rel / dt, world rate R rel / dt.
-        inv_dt = torch.where(single, torch.zeros_like(dt), 1.0 / dt).to(dtype)[:, None]
-        linear = (p1 - p0) * inv_dt
-        angular = (R @ (rel * inv_dt)[..., None]).squeeze(-1)
-        return R, trans, present, linear, angular
+            linear = angular = trans
+        else:
+            # d/dt of R0 exp(w rel) is R [rel / dt]x: body rate rel / dt, world rate R rel / dt.
+            inv_dt = torch.where(single, torch.zeros_like(dt), 1.0 / dt).to(dtype)[..., None]
+            linear = (p1 - p0) * inv_dt
+            angular = (R @ (rel * inv_dt)[..., None]).squeeze(-1)
+        if batched:
+            return R, trans, present, linear, angular
+        return R[0], trans[0], present, linear[0], angular[0]
 
     def forward(self, t: float | Tensor) -> tuple[Tensor, Tensor, Tensor]:
         """Same as :meth:`poses_at`."""

@@ -316,26 +316,30 @@ def rasterize_lidar(
     CUDA tensors), ``"torch"`` (tensor ops, any device) or ``"auto"`` (compiled on the CPU, Triton
     on CUDA where it is installed); the same result to float rounding.
 
-    Scales, opacities and features are shared by the bins ([N, ...]) or given per bin ([K, N, ...]):
-    per bin, each bin is its own set of Gaussians (padding with opacity 0 is dropped), so bins whose
-    Gaussians differ (instances present in one bin only) are rendered in one call.
+    Scales, opacities and features are each shared by the bins ([N, ...]) or given per bin ([K, N,
+    ...]): per bin, each bin is its own set of Gaussians (padding with opacity 0 is dropped), so bins
+    whose Gaussians differ (instances present in one bin only) are rendered in one call; per-bin
+    opacities with shared scales and features are one row set posed at K times.
     """
     if means.dim() == 2:
         means, quats = means[None], quats[None]
     if lidar_from_world.dim() == 2:
         lidar_from_world = lidar_from_world[None]
     k, n = means.shape[:2]
-    per_bin = opacities.dim() == 2
     if quats.shape != (k, n, 4) or lidar_from_world.shape != (k, 4, 4):
         raise IDSplatError(
             f"rasterize_lidar: means {tuple(means.shape)}, quats {tuple(quats.shape)} and "
             f"lidar_from_world {tuple(lidar_from_world.shape)} must share the bin count K"
         )
-    lead = (k, n) if per_bin else (n,)
-    if scales.shape != lead + (3,) or opacities.shape != lead or features.shape[:-1] != lead or features.dim() != len(lead) + 1:
+    # Each of scales, opacities and features is shared by the bins ([N, ...]) or given per bin.
+    scales_per_bin, opacities_per_bin, features_per_bin = scales.dim() == 3, opacities.dim() == 2, features.dim() == 3
+    per_bin = scales_per_bin or opacities_per_bin or features_per_bin
+    if (scales.shape[-1:] != (3,) or scales.shape[:-1] != ((k, n) if scales_per_bin else (n,))
+            or opacities.shape != ((k, n) if opacities_per_bin else (n,))
+            or features.shape[:-1] != ((k, n) if features_per_bin else (n,)) or features.dim() not in (2, 3)):
         raise IDSplatError(
             f"rasterize_lidar: scales {tuple(scales.shape)}, opacities {tuple(opacities.shape)} and features "
-            f"{tuple(features.shape)} must all be per Gaussian [N, ...] or all per bin [K, N, ...] with K={k}, N={n}"
+            f"{tuple(features.shape)} must each be per Gaussian [N, ...] or per bin [K, N, ...] with K={k}, N={n}"
         )
     if k > 1 and ray_bins is None:
         raise IDSplatError("rasterize_lidar: ray_bins is required when Gaussians are given for K > 1 time bins")
@@ -365,8 +369,8 @@ def rasterize_lidar(
     else:
         index, valid = kept_per_bin(keep)
         means, quats = _take(means, index, True), _take(quats, index, True)
-        scales, features = _take(scales, index, per_bin), _take(features, index, per_bin)
-        opacities = torch.where(valid, _take(opacities, index, per_bin), 0.0)  # padding: never composited
+        scales, features = _take(scales, index, scales_per_bin), _take(features, index, features_per_bin)
+        opacities = torch.where(valid, _take(opacities, index, opacities_per_bin), 0.0)  # padding: never composited
         n = index.shape[1]
     el = ray_elevation.detach()
     el_min = float(el.min()) - 2 * elevation_resolution if el.numel() else 0.0
