@@ -48,11 +48,9 @@ def build_file_descriptor() -> descriptor_pb2.FileDescriptorProto:
 def _own_classes() -> dict[str, type]:
     pool = descriptor_pool.DescriptorPool()
     pool.Add(build_file_descriptor())
-    classes = {}
-    for name in MESSAGES:
-        descriptor = pool.FindMessageTypeByName(f"{PACKAGE}.{name}")
-        classes[name] = message_factory.MessageFactory(pool).GetPrototype(descriptor)
-    return classes
+    # protobuf >= 4.21 makes classes with GetMessageClass and 5 removed GetPrototype; 3.20 has only that.
+    message_class = getattr(message_factory, "GetMessageClass", None) or message_factory.MessageFactory(pool).GetPrototype
+    return {name: message_class(pool.FindMessageTypeByName(f"{PACKAGE}.{name}")) for name in MESSAGES}
 
 
 OWN = _own_classes()
