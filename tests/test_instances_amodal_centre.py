@@ -99,3 +99,53 @@ def test_shift_origin_round_trip():
     p3, q3 = shift_origin(p2, q2, -c)
     np.testing.assert_allclose(p3, pts, atol=1e-12)
     np.testing.assert_allclose(q3, poses, atol=1e-12)
+
+
+def _trailer_rear(rng: np.random.Generator, length: float, height: float, underside: float, n: int = 600) -> np.ndarray:
+    """The rear face of a box of ``length`` x 2.5 m x ``height`` standing on the ground (z = 0), in
+    the body frame (x forward, origin at the box centre on the ground), with nothing seen below
+    ``underside`` (a trailer's open underside)."""
+    return np.stack([np.full(n, -length / 2), rng.uniform(-1.25, 1.25, n), rng.uniform(underside, height, n)], 1)
+
+
+@pytest.mark.parametrize("height, expected_length", [(3.9, 16.5), (3.1, 12.0)])
+def test_a_long_vehicle_taller_than_the_roof_height_is_completed_to_the_tall_size(height, expected_length):
+    # A 16.5 m lorry and a 12 m bus followed from 30 m behind, labelled "bus" (a tall end-on face):
+    # with the lidar ground, the lorry's 3.9 m roof gives it the tall size, the bus keeps its own.
+    rng = np.random.default_rng(4)
+    frames = 6
+    rear = _trailer_rear(rng, expected_length, height, underside=1.0)
+    origin = 0.5 * (rear.min(0) + rear.max(0))  # the paper's origin: middle of the seen face
+    poses = np.stack([make_pose(np.eye(3), origin + np.array([2.0 * k, 0.0, 0.0])) for k in range(frames)])
+    inst = InstanceTrack(1, "bus", rear - origin, None, poses, np.ones(frames, bool), np.full(frames, 600), np.ones(frames), 0)
+    tracks = InstanceTracks(np.arange(frames), np.arange(frames) * 0.1, [inst], [], {})
+    sensors = np.stack([np.array([2.0 * k - 30.0, 0.0, 1.8]) for k in range(frames)])
+    flat_ground = lambda xy: np.zeros(len(xy))  # noqa: E731
+    config = AmodalCentreConfig(tall_roof_height=3.5, ground_contact=True)
+    done = complete_centres(tracks, sensors, config, flat_ground).instance(1)
+    # The true box centre: x = 2k (body origin), y = 0, z = height / 2 above the ground.
+    np.testing.assert_allclose(done.poses[:, 0, 3], 2.0 * np.arange(frames), atol=0.05)
+    np.testing.assert_allclose(done.poses[:, 2, 3], height / 2, atol=0.05)
+    # Without the ground neither the roof nor the underside is known: the bus length, the seen middle.
+    plain = complete_centres(tracks, sensors, config).instance(1)
+    np.testing.assert_allclose(plain.poses[:, 0, 3], 2.0 * np.arange(frames) - (expected_length - 12.0) / 2, atol=0.05)
+    np.testing.assert_allclose(plain.poses[:, 2, 3], (1.0 + height) / 2, atol=0.05)
+
+
+def test_ground_contact_follows_the_ground_under_each_frame_and_ignores_unknown_ground():
+    rng = np.random.default_rng(5)
+    frames = 5
+    rear = _rear_face(rng) + np.array([0.0, 0.0, HEIGHT / 2])  # standing on z = 0, bottom 0.4 m unseen
+    rear = rear[rear[:, 2] > 0.4]
+    origin = 0.5 * (rear.min(0) + rear.max(0))
+    # A road climbing 1 m per frame along x; the car follows it.
+    poses = np.stack([make_pose(np.eye(3), origin + np.array([3.0 * k, 0.0, 1.0 * k])) for k in range(frames)])
+    inst = InstanceTrack(1, "car", rear - origin, None, poses, np.ones(frames, bool), np.full(frames, 400), np.ones(frames), 0)
+    tracks = InstanceTracks(np.arange(frames), np.arange(frames) * 0.1, [inst], [], {})
+    sensors = np.stack([np.array([3.0 * k - 12.0, 0.0, 1.8 + k]) for k in range(frames)])
+    # The ground under the seen face's middle (x = 3k - L/2) is at z = k; unknown at the first frame.
+    ground = lambda xy: np.where(np.arange(len(xy)) == 0, np.nan, (xy[:, 0] + LENGTH / 2) / 3.0)  # noqa: E731
+    done = complete_centres(tracks, sensors, AmodalCentreConfig(ground_contact=True), ground).instance(1)
+    np.testing.assert_allclose(done.poses[:, 2, 3], np.arange(frames) + HEIGHT / 2, atol=0.05)
+    off = complete_centres(tracks, sensors, AmodalCentreConfig(ground_contact=False), ground).instance(1)  # the seen middle
+    np.testing.assert_allclose(off.poses[:, 2, 3], np.arange(frames) + (0.4 + HEIGHT) / 2, atol=0.05)

@@ -14,12 +14,17 @@ shared rotation) and across it, when the merged canonical points are shorter tha
 vehicle of the instance's class, the visible face is the one towards the sensor, so the hidden
 body extends away from it: the centre is put half a typical length behind the visible face.
 Where the points already span a typical size, or the sensor was beside that face, the middle of
-the points is kept. Heights are left to the points.
+the points is kept. With the lidar ground under the instance, the centre's height is midway
+between the ground and the highest points (a road user stands on the ground), and a long vehicle
+whose roof stands higher than a bus's is completed to an articulated lorry's length: seen end-on
+for a whole drive, a lorry's length is never measured, and a bus length puts its centre 2.3 m
+short (docs/reports/2026-11-27-amodal-height.md).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from collections.abc import Callable
 from typing import Optional
 
 import numpy as np
@@ -56,6 +61,22 @@ class AmodalCentreConfig:
     """(label keyword, typical length, typical width) in metres; labels matching none are left as they are."""
     trim: float = 0.02
     """Fraction of the points ignored at each end of each axis (stray points from mask bleeding)."""
+    ground_contact: bool = True
+    """Put the centre's height midway between the lidar ground under the instance and its highest
+    points (a road user stands on the ground; the lidar misses a trailer's open underside or a
+    body hidden behind parked cars). False: the middle of the points' heights."""
+    tall_roof_height: Optional[float] = 3.5
+    """Metres above the lidar ground: a long vehicle (label ``bus`` or ``truck``) whose roof stands
+    higher is completed to ``tall_size`` (articulated lorries stand about 4 m high, buses and box
+    trucks 3-3.5 m). None: the label's size whatever the height."""
+    tall_size: tuple[float, float] = (16.5, 2.55)
+    """(length, width) in metres of a long vehicle taller than ``tall_roof_height``: an articulated
+    lorry (the EU's maximum length)."""
+
+
+def _is_long_vehicle(label: str) -> bool:
+    low = label.lower()
+    return "bus" in low or "truck" in low
 
 
 def typical_size(label: str, class_sizes: tuple[tuple[str, float, float], ...] = DEFAULT_CLASS_SIZES) -> Optional[tuple[float, float]]:
@@ -86,8 +107,10 @@ def amodal_centre(
     length: float,
     width: float,
     trim: float = 0.02,
+    ground: Optional[float] = None,  # height of the ground in the canonical frame (None: unknown)
 ) -> np.ndarray:  # -> [3]
-    """The completed centre of the module docstring, in the canonical frame."""
+    """The completed centre of the module docstring, in the canonical frame; with ``ground`` its
+    height is midway between the ground and the highest points."""
     f = np.array([forward[0], forward[1], 0.0], dtype=np.float64)
     if np.linalg.norm(f) < 1e-9:
         f = np.array([1.0, 0.0, 0.0])
@@ -97,6 +120,8 @@ def amodal_centre(
     a = _completed_middle(points @ f, float(sensor @ f), length, trim)
     b = _completed_middle(points @ l, float(sensor @ l), width, trim)
     z_lo, z_hi = np.quantile(points[:, 2], [trim, 1.0 - trim])
+    if ground is not None and np.isfinite(ground) and ground < z_hi:
+        z_lo = min(z_lo, ground)
     return a * f + b * l + np.array([0.0, 0.0, 0.5 * (z_lo + z_hi)])
 
 
@@ -164,12 +189,28 @@ def sensors_in_canonical(
     return np.einsum("kji,kj->ki", R, np.asarray(sensor_positions, np.float64)[k] - t)
 
 
+def ground_in_canonical(
+    poses: np.ndarray,  # [F, 4, 4] canonical -> world
+    frames: np.ndarray,  # [K] frame indices
+    ground_heights: Callable[[np.ndarray], np.ndarray],  # world xy [M, 2] -> ground heights [M] (NaN: unknown)
+) -> Optional[float]:
+    """Height of the ground under the canonical origin in the canonical frame (its z axis taken as
+    the world's up: a road user is turned about the vertical): the median over ``frames`` of
+    ``ground(t_xy) - t_z``; None where the ground is unknown at every frame."""
+    t = poses[np.asarray(frames), :3, 3]
+    below = ground_heights(t[:, :2]) - t[:, 2]
+    below = below[np.isfinite(below)]
+    return float(np.median(below)) if len(below) else None
+
+
 def complete_centres(
     tracks: InstanceTracks,
     sensor_positions: np.ndarray,  # [F, 3] the (main lidar) sensor in the world at each of the tracks' frames
     config: AmodalCentreConfig = AmodalCentreConfig(),
+    ground_heights: Optional[Callable[[np.ndarray], np.ndarray]] = None,  # world xy [M, 2] -> [M], NaN: unknown
 ) -> InstanceTracks:
-    """A copy of ``tracks`` whose dynamic instances have amodal canonical origins."""
+    """A copy of ``tracks`` whose dynamic instances have amodal canonical origins. ``ground_heights``
+    (the lidar ground, ``GroundSurface.heights_at``) serves ``ground_contact`` and ``tall_roof_height``."""
     if not config.enabled:
         return tracks
     out, moved = [], {}
@@ -180,9 +221,17 @@ def complete_centres(
         if size is None or forward is None or not measured.any() or len(inst.canonical_points) < 3:
             out.append(inst)
             continue
+        ground = None
+        if ground_heights is not None and (config.ground_contact or config.tall_roof_height is not None):
+            ground = ground_in_canonical(inst.poses, np.flatnonzero(measured), ground_heights)
+        if config.tall_roof_height is not None and ground is not None and _is_long_vehicle(inst.label):
+            roof = float(np.quantile(inst.canonical_points[:, 2], 1.0 - config.trim)) - ground
+            if roof > config.tall_roof_height:
+                size = config.tall_size
         forward = box_heading(inst.canonical_points, forward, inst.point_frames)
         sensors = sensors_in_canonical(inst.poses, sensor_positions, np.flatnonzero(measured))
-        c = amodal_centre(inst.canonical_points, forward, sensors, size[0], size[1], config.trim)
+        c = amodal_centre(inst.canonical_points, forward, sensors, size[0], size[1], config.trim,
+                          ground if config.ground_contact else None)
         points, poses = shift_origin(inst.canonical_points, inst.poses, c)
         moved[int(inst.instance_id)] = [float(x) for x in c]
         out.append(replace(inst, canonical_points=points, poses=poses))

@@ -6,6 +6,7 @@ instance model, by the datamanager).
 
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -16,9 +17,10 @@ from idsplat_ns.errors import IDSplatError
 from idsplat_ns.instances.amodal_centre import AmodalCentreConfig, complete_centres
 from idsplat_ns.instances.cache import atomic_path, hash_json, remove_stale_temporaries, scene_fingerprint
 from idsplat_ns.instances.features.base import PointFeatures
+from idsplat_ns.instances.ground import GroundConfig, GroundSurface
 from idsplat_ns.instances.options import cli_option
 from idsplat_ns.instances.smoothing import SmoothingConfig
-from idsplat_ns.instances.smoothing.instance_tracks import ground_surface, smooth_tracks
+from idsplat_ns.instances.smoothing.instance_tracks import smooth_tracks, uses_ground
 from idsplat_ns.instances.features.config import FeatureConfig, make_feature_extractor, resolve_feature_kind
 from idsplat_ns.instances.masks.lidar_motion import LidarMotionMaskSource
 from idsplat_ns.instances.lidar_motion_lifting import lift_track_points
@@ -229,6 +231,11 @@ def run_preprocessing(
     timings.append(StageTiming("static conversion", time.perf_counter() - t0, False,
                                f"{len(tracks.instances)} dynamic, {len(tracks.static_instances)} static"))
 
+    # The lidar ground (lowest points per cell of every sweep), built at most once: the smoother
+    # keeps vehicles on it and the amodal centres stand on it.
+    ground_config = config.smoothing.ground if config.smoothing is not None else GroundConfig()
+    lidar_ground = functools.cache(lambda: GroundSurface.from_sweeps(scene.lidar, ground_config))
+
     # 6. Coordinated-turn smoothing (Sec. 3.4).
     t0 = time.perf_counter()
     if config.smoothing is None:
@@ -241,14 +248,17 @@ def run_preprocessing(
         smoothing = config.smoothing
         tracks, cached = _cached_file(
             cache_dir / f"smoothing-{smooth_key}.npz",
-            lambda: smooth_tracks(tracks, smoothing, ground_surface(scene, smoothing), config.workers, progress),
+            lambda: smooth_tracks(tracks, smoothing, lidar_ground() if uses_ground(scene, smoothing) else None,
+                                  config.workers, progress),
             lambda r, p: r.save(p), InstanceTracks.load)
         timings.append(StageTiming("smoothing", time.perf_counter() - t0, cached))
 
     # 7. Amodal canonical origins (cheap, not cached).
     t0 = time.perf_counter()
     if config.amodal.enabled:
-        tracks = complete_centres(tracks, scene.lidar_positions(), config.amodal)
+        amodal = config.amodal
+        on_ground = (amodal.ground_contact or amodal.tall_roof_height is not None) and scene.has_lidar
+        tracks = complete_centres(tracks, scene.lidar_positions(), amodal, lidar_ground().heights_at if on_ground else None)
         timings.append(StageTiming("amodal centres", time.perf_counter() - t0, False,
                                    f"{len(tracks.metadata.get('amodal_centre_shift', {}))} moved"))
     else:

@@ -56,12 +56,15 @@ def registration_times(inst: InstanceTrack, frame_times: np.ndarray, config: Smo
     return inst.measurement_times(frame_times) if config.measurement_times else frame_times
 
 
+def uses_ground(scene: Scene, config: SmoothingConfig) -> bool:
+    """Whether the smoother keeps vehicles on the lidar ground: ``config`` asks for it and the
+    scene has lidar."""
+    return config.ground_height_walk_rate is not None and scene.has_lidar
+
+
 def ground_surface(scene: Scene, config: SmoothingConfig) -> Optional[GroundSurface]:
-    """The lidar ground the smoother keeps vehicles on, or None where ``config`` does not ask for
-    it or the scene has no lidar."""
-    if config.ground_height_walk_rate is None or not scene.has_lidar:
-        return None
-    return GroundSurface.from_sweeps(scene.lidar, config.ground)
+    """The lidar ground the smoother keeps vehicles on, or None where :func:`uses_ground` says no."""
+    return GroundSurface.from_sweeps(scene.lidar, config.ground) if uses_ground(scene, config) else None
 
 
 def smooth_instance(inst: InstanceTrack, times: np.ndarray, config: SmoothingConfig,
