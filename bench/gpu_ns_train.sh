@@ -8,9 +8,13 @@
 # are expected in .whl/ (WHEELS=none where the environment has everything). open3d does not fit a
 # device call, so the instance mode defaults to oracle (annotation boxes: no registration, which
 # needs open3d).
-# gsplat's CUDA code is compiled while the street is generated. The run saves a checkpoint every
-# 500 steps (SAVE_EVERY); when TRAIN_SECONDS have passed it is stopped (SIGINT) and the last checkpoint is
-# evaluated. OUT receives train.log, eval.json, gpu_memory.csv and summary.json.
+# gsplat's CUDA code is compiled while the street is generated (GSPLAT=0: no build, and the camera
+# through the tile rasterizer, --pipeline.model.camera-backend torch). The run saves a checkpoint
+# every 500 steps (SAVE_EVERY); when TRAIN_SECONDS have passed it is stopped (SIGINT) and the last
+# checkpoint is evaluated. OUT receives train.log, eval.json, gpu_memory.csv and summary.json.
+# AGAINST_TREE=DIR (another revision's idsplat_ns and method_configs: git archive REV idsplat_ns
+# method_configs | tar -x -C DIR) trains and evaluates that engine the same way first, into
+# OUT/against/ (run from inside DIR, whose packages `python -m` then imports first).
 # LIDAR_AGAINST=DIR (a source tree of another revision, see bench/bench_lidar_render.py) times a
 # training lidar batch of both beside each other (lidar_render.md) while gsplat builds (it needs no
 # gsplat; the build then leaves two cores to it). GPU_TESTS=1 runs gsplat's parity tests once it is
@@ -29,7 +33,9 @@ stamp() { echo "[$(( $(date +%s) - T0 )) s] $*" | tee -a "$OUT/summary.log"; }
 
 . "$(dirname "$0")/gpu_install.sh"
 
-if $PY -c 'import torch, sys; sys.exit(0 if torch.cuda.is_available() else 1)'; then
+BACKEND=()
+[ "${GSPLAT:-1}" = 0 ] && BACKEND=(--pipeline.model.camera-backend torch)
+if [ "${GSPLAT:-1}" = 1 ] && $PY -c 'import torch, sys; sys.exit(0 if torch.cuda.is_available() else 1)'; then
     JOBS=$(nproc); [ -n "${LIDAR_AGAINST:-}" ] && JOBS=$(( JOBS > 4 ? JOBS - 2 : JOBS ))
     export MAX_JOBS=${MAX_JOBS:-$JOBS} TORCH_CUDA_ARCH_LIST=${TORCH_CUDA_ARCH_LIST:-9.0}
     $PY -c "from gsplat.cuda._backend import _C; print('gsplat compiled:', _C is not None)" >"$OUT/gsplat_build.log" 2>&1 &
@@ -57,23 +63,35 @@ if [ "${GPU_TESTS:-0}" = 1 ]; then
     stamp "gsplat parity tests ended with $? ($(tail -1 "$OUT/pytest.log"))"
 fi
 
-RUN=/tmp/idsplat_runs
-TRAIN_T0=$(date +%s)
-timeout -s INT "$SECS" $PY -c 'import sys; from nerfstudio.scripts.train import entrypoint; sys.argv[0] = "ns-train"; entrypoint()' \
-    idsplat --vis tensorboard --output-dir "$RUN" --experiment-name gpu --timestamp run --steps-per-save "${SAVE_EVERY:-500}" \
-    --pipeline.datamanager.instance-mode "$MODE" "$@" \
-    idsplat-builtin --preset "$PRESET" --seed "$SEED" >"$OUT/train.log" 2>&1
-RC=$?
-TRAIN_S=$(( $(date +%s) - TRAIN_T0 ))
-stamp "ns-train ended with $RC after $TRAIN_S s"
-CONFIG="$RUN/gpu/idsplat/run/config.yml"
-LAST=$(ls "$RUN/gpu/idsplat/run/nerfstudio_models" 2>/dev/null | sort | tail -1)
-stamp "last checkpoint: ${LAST:-none}"
-[ -n "$LAST" ] || { tail -40 "$OUT/train.log"; exit 1; }
+OUT=$(cd "$OUT" && pwd)
+# train_and_eval DIR TAG: ns-train then ns-eval from inside DIR (its packages first), results in
+# $OUT/$TAG (. for this checkout).
+train_and_eval() {
+    local dir=$1 tag=$2 run=/tmp/idsplat_runs/$2 res=$OUT/$2
+    mkdir -p "$res"
+    local t0; t0=$(date +%s)
+    (cd "$dir" && timeout -s INT "$SECS" $PY -c 'import sys; from nerfstudio.scripts.train import entrypoint; sys.argv[0] = "ns-train"; entrypoint()' \
+        idsplat --vis tensorboard --output-dir "$run" --experiment-name gpu --timestamp run --steps-per-save "${SAVE_EVERY:-500}" \
+        --pipeline.datamanager.instance-mode "$MODE" "${BACKEND[@]}" "${TRAIN_ARGS[@]}" \
+        idsplat-builtin --preset "$PRESET" --seed "$SEED" >"$res/train.log" 2>&1)
+    local rc=$?
+    TRAIN_S=$(( $(date +%s) - t0 ))
+    stamp "$tag: ns-train ended with $rc after $TRAIN_S s"
+    CONFIG="$run/gpu/idsplat/run/config.yml"
+    LAST=$(ls "$run/gpu/idsplat/run/nerfstudio_models" 2>/dev/null | sort | tail -1)
+    stamp "$tag: last checkpoint: ${LAST:-none}"
+    [ -n "$LAST" ] || { tail -40 "$res/train.log"; return 1; }
+    (cd "$dir" && $PY -c 'import sys; from nerfstudio.scripts.eval import entrypoint; sys.argv[0] = "ns-eval"; entrypoint()' \
+        --load-config "$CONFIG" --output-path "$res/eval.json" >"$res/eval.log" 2>&1)
+    stamp "$tag: ns-eval ended with $?"
+}
 
-$PY -c 'import sys; from nerfstudio.scripts.eval import entrypoint; sys.argv[0] = "ns-eval"; entrypoint()' \
-    --load-config "$CONFIG" --output-path "$OUT/eval.json" >"$OUT/eval.log" 2>&1
-stamp "ns-eval ended with $?"
+TRAIN_ARGS=("$@")
+if [ -n "${AGAINST_TREE:-}" ]; then
+    [ -d "$AGAINST_TREE/idsplat_ns" ] || { stamp "AGAINST_TREE=$AGAINST_TREE has no idsplat_ns/"; exit 1; }
+    train_and_eval "$AGAINST_TREE" against
+fi
+train_and_eval "$PWD" . || exit 1
 [ -n "${SMI:-}" ] && kill "$SMI"
 $PY - "$OUT" "$LAST" "$TRAIN_S" "$PRESET" "$SEED" "$MODE" <<'EOF'
 import json, sys, torch

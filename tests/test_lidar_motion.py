@@ -293,3 +293,27 @@ def test_a_lidar_motion_cache_without_its_points_says_what_to_do(street, tmp_pat
     scene, _ = street
     with pytest.raises(IDSplatError, match="track_points.npz: missing; delete"):
         lift_track_points(scene, tmp_path, {}, LiftingConfig(), progress=False)
+
+
+def test_a_walking_persons_track_needs_less_displacement_than_a_cars():
+    from idsplat_ns.instances.lidar_motion import min_displacement
+    from idsplat_ns.instances.motion_tracks import LidarMotionConfig, MotionCluster, MotionTrack
+
+    rng = np.random.default_rng(0)
+
+    def track(half_length: float, half_width: float, height: float, step: float) -> MotionTrack:
+        clusters = []
+        for k in range(10):  # one second at 10 Hz
+            body = rng.uniform([-half_length, -half_width, 0.3], [half_length, half_width, height], size=(60, 3))
+            clusters.append(MotionCluster(k, body + [step * k, 0.0, 0.0], np.full(60, 0.1 * k)))
+        return MotionTrack(1, clusters)
+
+    person = track(0.25, 0.25, 1.8, 0.13)  # 1.3 m/s
+    car = track(2.2, 0.9, 1.5, 0.13)
+    assert person.label() == "pedestrian" and car.label() == "car"
+    unset = LidarMotionConfig(min_displacement_person=None)
+    default = LidarMotionConfig()
+    assert min_displacement(person, unset) == min_displacement(car, unset) == unset.min_displacement == 1.5
+    assert min_displacement(person, default) == 1.0  # the default
+    assert min_displacement(car, default) == 1.5
+    assert person.displacement() > 1.0  # the person of 1 s at 1.3 m/s now moves; before it did not

@@ -127,11 +127,19 @@ def moving_tracks(scene: Scene, config: LidarMotionConfig, progress: bool = Fals
     if config.compensate_own_motion:
         motion_compensated_scores([tr for tr in long_enough if tr.duration() >= config.compensate_min_seconds], evidence, config)
     score = (lambda tr: tr.motion_score()) if config.compensate_own_motion else (lambda tr: tr.median_score())
-    moving = [tr for tr in long_enough if score(tr) > config.moving_score and tr.displacement() >= config.min_displacement]
+    moving = [tr for tr in long_enough if score(tr) > config.moving_score and tr.displacement() >= min_displacement(tr, config)]
     moving = merge_parts(moving, config)
     for n, tr in enumerate(moving, start=1):
         tr.track_id = n
     return moving
+
+
+def min_displacement(track: MotionTrack, config: LidarMotionConfig) -> float:
+    """Metres the track's centroid must travel to be moving: ``min_displacement_person`` for a
+    track whose class guess is a pedestrian (where set), else ``min_displacement``."""
+    if config.min_displacement_person is not None and track.label(config.long_vehicle_height) == "pedestrian":
+        return config.min_displacement_person
+    return config.min_displacement
 
 
 def _parts_of_one_object(a: MotionTrack, b: MotionTrack, config: LidarMotionConfig) -> bool:

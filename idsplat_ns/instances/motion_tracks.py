@@ -8,6 +8,7 @@ observations (lidar_motion_lifting.py); it imports none of them.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Optional
 
 import numpy as np
 
@@ -70,6 +71,10 @@ class LidarMotionConfig:
     """A track whose median motion score exceeds this is moving."""
     min_displacement: float = 1.5
     """Metres: a moving track's centroid must travel at least this far over its life."""
+    min_displacement_person: Optional[float] = 1.0
+    """Metres: the same for a track whose class guess is ``pedestrian`` (a person walks 1.3 m a
+    second: a track of a second or two travels less than a car's 1.5 m). None: ``min_displacement``
+    for every track (docs/reports/2026-11-27-walking-pedestrians.md)."""
     merge_distance: float = 1.5
     """Metres: moving tracks whose clusters come this close in every shared sweep, at similar
     velocity, are parts of one object (a car seen in two pieces around an occluder) and merge."""
