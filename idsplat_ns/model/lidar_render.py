@@ -165,6 +165,8 @@ class _RayGroups:
 
 
 def _ray_groups(rays: LidarRayBatch, sensor_to_world: Tensor, num_time_bins: int, rasterizer_kwargs: dict) -> _RayGroups:
+    if rays.num_rays == 0:
+        raise IDSplatError("render_lidar_rays: the ray batch is empty; sample at least one ray")
     device = rays.origins.device
     bins, centres = time_bins(rays.times, num_time_bins)
     # One group per (lidar, time bin): each lidar is cast from its own position.
@@ -235,8 +237,6 @@ def render_lidar_rays(
     (resolutions, planes...). The reference of :func:`render_lidar_rays_binned`, which poses the
     bins in one batch and is what training uses.
     """
-    if rays.num_rays == 0:
-        raise IDSplatError("render_lidar_rays: the ray batch is empty; sample at least one ray")
     grp = _ray_groups(rays, sensor_to_world, num_time_bins, rasterizer_kwargs)
     posed_cache: dict[int, dict] = {}
     per_group = []
@@ -274,8 +274,6 @@ def render_lidar_rays_binned(
     groups at once by :func:`rasterize_lidar`: a fixed number of operations whatever the number
     of bins and lidars, where the reference loops over them. The same render: each group keeps
     the same Gaussians in the same order."""
-    if rays.num_rays == 0:
-        raise IDSplatError("render_lidar_rays: the ray batch is empty; sample at least one ray")
     grp = _ray_groups(rays, sensor_to_world, num_time_bins, rasterizer_kwargs)
     posed = posed_at_times(grp.centres.to(rays.origins.device))
     bin_of = grp.group_ids % grp.centres.numel()  # [G] time bin of each group
