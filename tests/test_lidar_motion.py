@@ -317,3 +317,30 @@ def test_a_walking_persons_track_needs_less_displacement_than_a_cars():
     assert min_displacement(person, default) == 1.0  # the default
     assert min_displacement(car, default) == 1.5
     assert person.displacement() > 1.0  # the person of 1 s at 1.3 m/s now moves; before it did not
+
+
+def test_a_track_handed_over_on_a_turn_merges_but_cars_abreast_do_not():
+    from idsplat_ns.instances.lidar_motion import _parts_of_one_object
+    from idsplat_ns.instances.motion_tracks import LidarMotionConfig, MotionCluster, MotionTrack
+
+    rng = np.random.default_rng(1)
+
+    def blob(frame: int, centre) -> MotionCluster:
+        pts = np.asarray(centre, float) + rng.uniform([-1.0, -0.5, 0.3], [1.0, 0.5, 1.5], size=(40, 3))
+        return MotionCluster(frame, pts, np.full(40, 0.1 * frame))
+
+    # A car's first piece creeps (its visible part grows: 1 m/s), the second drives on at 5 m/s in
+    # about the same direction; they share two sweeps where their clusters touch.
+    first = MotionTrack(1, [blob(k, [0.1 * k, 0.0, 0.0]) for k in range(10)])
+    second = MotionTrack(2, [blob(k, [1.3 + 0.5 * (k - 8), 0.06 * (k - 8), 0.0]) for k in range(8, 20)])
+    hand_over = LidarMotionConfig(merge_hand_over_sweeps=2)
+    assert np.linalg.norm(first.mean_velocity()[:2] - second.mean_velocity()[:2]) > hand_over.merge_speed_difference
+    assert not _parts_of_one_object(first, second, LidarMotionConfig(merge_hand_over_sweeps=0))
+    assert _parts_of_one_object(first, second, hand_over)
+    # Cars abreast (an overtaking, 4 m/s faster, 2 m to the side) share many sweeps: never handed over.
+    slow = MotionTrack(3, [blob(k, [1.0 * k, 0.0, 0.0]) for k in range(12)])
+    fast = MotionTrack(4, [blob(k, [1.4 * k - 2.4, 2.0, 0.0]) for k in range(6, 12)])
+    assert not _parts_of_one_object(slow, fast, hand_over)
+    # Two sweeps shared at the end of one and the start of the other, but heading the other way.
+    oncoming = MotionTrack(5, [blob(k, [1.3 - 0.5 * (k - 8), 0.0, 0.0]) for k in range(8, 20)])
+    assert not _parts_of_one_object(first, oncoming, hand_over)

@@ -150,7 +150,7 @@ def _parts_of_one_object(a: MotionTrack, b: MotionTrack, config: LidarMotionConf
     # Velocities over each track's life: a car's pieces swap between tracks from sweep to sweep,
     # so centroid steps over a few shared sweeps jump by the piece offsets.
     va, vb = a.mean_velocity()[:2], b.mean_velocity()[:2]
-    if np.linalg.norm(va - vb) > config.merge_speed_difference:
+    if np.linalg.norm(va - vb) > config.merge_speed_difference and not _hands_over(a, b, len(shared), va, vb, config):
         return False
     for ca, cb in shared:
         gap, _ = cKDTree(ca.points).query(cb.points, k=1)
@@ -158,6 +158,20 @@ def _parts_of_one_object(a: MotionTrack, b: MotionTrack, config: LidarMotionConf
         if gap.min() > config.merge_distance and not fits_footprint(together, config.merge_footprint, va + vb):
             return False
     return True
+
+
+def _hands_over(a: MotionTrack, b: MotionTrack, shared: int, va: np.ndarray, vb: np.ndarray,
+                config: LidarMotionConfig) -> bool:
+    """Whether one track ends in the sweeps where the other starts (at most ``merge_hand_over_sweeps``
+    shared, the last of one and the first of the other) and both head the same way (within 60
+    degrees): one object's track handed over, not two objects side by side."""
+    if not 0 < shared <= config.merge_hand_over_sweeps:
+        return False
+    first, second = (a, b) if a.clusters[0].frame <= b.clusters[0].frame else (b, a)
+    if first.clusters[-1].frame >= second.clusters[shared - 1].frame + 1 or second.clusters[-1].frame <= first.clusters[-1].frame:
+        return False
+    speeds = float(np.linalg.norm(va) * np.linalg.norm(vb))
+    return speeds > 0 and float(va @ vb) >= 0.5 * speeds
 
 
 def fits_footprint(points: np.ndarray, size: tuple[float, float], heading: np.ndarray) -> bool:

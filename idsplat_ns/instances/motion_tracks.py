@@ -80,6 +80,12 @@ class LidarMotionConfig:
     velocity, are parts of one object (a car seen in two pieces around an occluder) and merge."""
     merge_speed_difference: float = 3.0
     """m/s: largest difference of two tracks' mean velocities for them to be parts of one object."""
+    merge_hand_over_sweeps: int = 2
+    """Sweeps: a track that ends within this many sweeps of another's start, touching it (as
+    ``merge_distance`` and ``merge_footprint`` say) in those shared sweeps and heading within 60
+    degrees of it, hands over to it whatever their mean velocities (a car coming round a corner:
+    the growing part the lidar sees slows its first piece's centroid). 0: no hand-over
+    (docs/reports/2026-11-27-walking-pedestrians.md)."""
     merge_footprint: tuple[float, float] = (5.0, 2.5)
     """Metres (length, width): moving tracks whose clusters, in every shared sweep, together fit a
     box of this size on the ground (its length along their motion), at similar velocity, are parts of
