@@ -168,7 +168,7 @@ def _hands_over(a: MotionTrack, b: MotionTrack, shared: int, va: np.ndarray, vb:
     if not 0 < shared <= config.merge_hand_over_sweeps:
         return False
     first, second = (a, b) if a.clusters[0].frame <= b.clusters[0].frame else (b, a)
-    if first.clusters[-1].frame >= second.clusters[shared - 1].frame + 1 or second.clusters[-1].frame <= first.clusters[-1].frame:
+    if first.clusters[-1].frame > second.clusters[shared - 1].frame or second.clusters[-1].frame <= first.clusters[-1].frame:
         return False
     speeds = float(np.linalg.norm(va) * np.linalg.norm(vb))
     return speeds > 0 and float(va @ vb) >= 0.5 * speeds

@@ -161,10 +161,9 @@ class _RayGroups:
     along: Tensor  # [R, 1] along-ray offset of each ray's own origin from its group's
     azimuth: Tensor  # [R] radians
     elevation: Tensor  # [R] radians
-    margin: Optional[float]  # the cull's angular margin (None: culling off)
 
 
-def _ray_groups(rays: LidarRayBatch, sensor_to_world: Tensor, num_time_bins: int, rasterizer_kwargs: dict) -> _RayGroups:
+def _ray_groups(rays: LidarRayBatch, sensor_to_world: Tensor, num_time_bins: int) -> _RayGroups:
     if rays.num_rays == 0:
         raise IDSplatError("render_lidar_rays: the ray batch is empty; sample at least one ray")
     device = rays.origins.device
@@ -188,33 +187,31 @@ def _ray_groups(rays: LidarRayBatch, sensor_to_world: Tensor, num_time_bins: int
     # Range from each ray's own origin = range from its group's position minus this along-ray offset.
     along = ((rays.origins - origins[ray_group]) * rays.directions).sum(1, keepdim=True)
     az, el = ray_angles(rays.directions, rot)
-    margin = None
-    if rasterizer_kwargs.get("cull", True):
-        margin = cull_margin(**{k: rasterizer_kwargs.get(k, _RASTERIZER_DEFAULTS[k]) for k in _GRID_ARGS})
-    return _RayGroups(centres, group_ids, ray_group, origins, lidar_from_world, along, az, el, margin)
+    return _RayGroups(centres, group_ids, ray_group, origins, lidar_from_world, along, az, el)
 
 
-def _rasterize_groups(stacked: dict[str, Tensor], groups: _RayGroups, cutoff_ranges: Optional[Tensor],
-                      rasterizer_kwargs: dict) -> LidarRender:  # fmt: skip
-    """One rasterization of every group's Gaussians ([G, M, ...], culled already), ranges from
-    each ray's own origin."""
+def _rasterize_groups(
+    means: Tensor,  # [G, M, 3] world, seen from the first group's position
+    quats: Tensor,  # [G, M, 4]
+    scales: Tensor,  # [M, 3] or [G, M, 3]
+    opacities: Tensor,  # [G, M]
+    features: Tensor,  # [M, D] or [G, M, D]
+    groups: _RayGroups,
+    cutoff_ranges: Optional[Tensor],  # [R] metres from each ray's own origin
+    rasterizer_kwargs: dict,
+) -> LidarRender:
+    """One rasterization of every group's Gaussians, ranges measured from each ray's own origin
+    instead of its group's (0 stays 0: no hit)."""
     along = groups.along
     cut = None if cutoff_ranges is None else cutoff_ranges + along[:, 0]
-    num_groups = groups.group_ids.numel()
-    out = rasterize_lidar(stacked["means"], stacked["quats"], stacked["scales"], stacked["opacities"],
-                          stacked["features"], groups.lidar_from_world.expand(num_groups, 4, 4), groups.azimuth,
-                          groups.elevation, ray_bins=groups.ray_group, ray_cutoff=cut,
-                          **dict(rasterizer_kwargs, cull=False))  # fmt: skip
-    return _from_group_origins(out, groups)
-
-
-def _from_group_origins(out: LidarRender, groups: _RayGroups) -> LidarRender:
-    """Ranges measured from each ray's own origin instead of its group's (0 stays 0: no hit)."""
+    out = rasterize_lidar(means, quats, scales, opacities, features,
+                          groups.lidar_from_world.expand(groups.group_ids.numel(), 4, 4), groups.azimuth,
+                          groups.elevation, ray_bins=groups.ray_group, ray_cutoff=cut, **rasterizer_kwargs)  # fmt: skip
     hit = out.alpha > 0
     return replace(
         out,
-        range=torch.where(hit, out.range - groups.along, out.range),
-        median_range=torch.where(hit, out.median_range - groups.along, out.median_range),
+        range=torch.where(hit, out.range - along, out.range),
+        median_range=torch.where(hit, out.median_range - along, out.median_range),
     )
 
 
@@ -237,7 +234,10 @@ def render_lidar_rays(
     (resolutions, planes...). The reference of :func:`render_lidar_rays_binned`, which poses the
     bins in one batch and is what training uses.
     """
-    grp = _ray_groups(rays, sensor_to_world, num_time_bins, rasterizer_kwargs)
+    grp = _ray_groups(rays, sensor_to_world, num_time_bins)
+    margin = None
+    if rasterizer_kwargs.get("cull", True):
+        margin = cull_margin(**{k: rasterizer_kwargs.get(k, _RASTERIZER_DEFAULTS[k]) for k in _GRID_ARGS})
     posed_cache: dict[int, dict] = {}
     per_group = []
     for g, group in enumerate(grp.group_ids.tolist()):
@@ -247,18 +247,20 @@ def render_lidar_rays(
         posed = posed_cache[b]
         if g > 0:  # seen from the first group's position, the group's Gaussians sit moved by this offset
             posed = dict(posed, means=posed["means"] + (grp.origins[0] - grp.origins[g]).to(posed["means"].dtype))
-        if grp.margin is not None and posed["means"].shape[0]:
+        if margin is not None and posed["means"].shape[0]:
             # Only what the group's rays may reach is stacked (a time bin is a sector of a sweep):
             # memory in proportion to the Gaussians seen, not to groups x all Gaussians.
             mine = grp.ray_group == g
             seen = seen_by_rays(posed["means"].detach()[None], posed["scales"].detach(), grp.lidar_from_world[None],
                                 grp.azimuth[mine].detach(), grp.elevation[mine].detach(),
-                                torch.zeros_like(grp.ray_group[mine]), grp.margin)[0]  # fmt: skip
+                                torch.zeros_like(grp.ray_group[mine]), margin)[0]  # fmt: skip
             keep = torch.nonzero(seen & (posed["opacities"].detach() > ALPHA_MIN)).squeeze(1)
             posed = {k: posed[k].index_select(0, keep) for k in _GAUSSIAN_KEYS}
         per_group.append(posed)
     # Culled above, group by group (or culling is off): the rasterizer need not test again.
-    return _rasterize_groups(_stack_groups(per_group), grp, cutoff_ranges, rasterizer_kwargs)
+    g = _stack_groups(per_group)
+    return _rasterize_groups(g["means"], g["quats"], g["scales"], g["opacities"], g["features"], grp, cutoff_ranges,
+                             dict(rasterizer_kwargs, cull=False))  # fmt: skip
 
 
 def render_lidar_rays_binned(
@@ -274,18 +276,15 @@ def render_lidar_rays_binned(
     groups at once by :func:`rasterize_lidar`: a fixed number of operations whatever the number
     of bins and lidars, where the reference loops over them. The same render: each group keeps
     the same Gaussians in the same order."""
-    grp = _ray_groups(rays, sensor_to_world, num_time_bins, rasterizer_kwargs)
+    grp = _ray_groups(rays, sensor_to_world, num_time_bins)
     posed = posed_at_times(grp.centres.to(rays.origins.device))
     bin_of = grp.group_ids % grp.centres.numel()  # [G] time bin of each group
     shift = (grp.origins[:1] - grp.origins).to(posed.means.dtype)  # [G, 3]; seen from group 0's position
     # The rasterizer culls each group by its own rays and gathers the kept Gaussians of every group
     # at once (rasterize_lidar with per-bin means and opacities, shared scales and features).
-    cut = None if cutoff_ranges is None else cutoff_ranges + grp.along[:, 0]
-    out = rasterize_lidar(posed.means.index_select(0, bin_of) + shift[:, None], posed.quats.index_select(0, bin_of),
-                          posed.scales, posed.opacities.index_select(0, bin_of), posed.features,
-                          grp.lidar_from_world.expand(bin_of.numel(), 4, 4), grp.azimuth, grp.elevation,
-                          ray_bins=grp.ray_group, ray_cutoff=cut, **rasterizer_kwargs)  # fmt: skip
-    return _from_group_origins(out, grp)
+    return _rasterize_groups(posed.means.index_select(0, bin_of) + shift[:, None], posed.quats.index_select(0, bin_of),
+                             posed.scales, posed.opacities.index_select(0, bin_of), posed.features, grp, cutoff_ranges,
+                             rasterizer_kwargs)  # fmt: skip
 
 
 _GAUSSIAN_KEYS = ("means", "quats", "scales", "opacities", "features")

@@ -136,18 +136,16 @@ class SceneModel(nn.Module):
         return weight[row : row + 1] if row >= 0 else weight.new_zeros(1, weight.shape[1])
 
     def posed_gaussians(
-        self, time: Optional[float | Tensor], with_velocities: bool = False, activated: Optional[dict] = None,
-        drop_absent: bool = True,
+        self, time: Optional[float | Tensor], with_velocities: bool = False, drop_absent: bool = True,
     ) -> dict[str, Tensor]:
         """Activated Gaussians in the world at ``time`` (seconds); absent instances removed.
         ``with_velocities`` adds ``velocities`` [M, 3], the world-frame velocity of each mean
-        (zero for the background), when instances move; a static scene has none. ``activated``:
-        :meth:`GaussianSet.activated`'s output when the caller poses several times (a lidar batch's
-        time bins), so that the activations are computed and differentiated once.
+        (zero for the background), when instances move; a static scene has none.
         ``drop_absent=False`` keeps absent instances' Gaussians with opacity 0 instead of removing
         them (no [N]-row gathers; for renderers that drop transparent Gaussians, as the lidar's do:
-        a camera render gained nothing measurable from it at 80,000 Gaussians)."""
-        g = self.gaussians.activated() if activated is None else activated
+        a camera render gained nothing measurable from it at 80,000 Gaussians). Several times at
+        once: :meth:`posed_gaussians_at_times`."""
+        g = self.gaussians.activated()
         ids = self.gaussians.instance_ids
         if self.trajectories is None:  # a static scene: nothing to pose or drop
             return g | {"instance_ids": ids}
