@@ -341,6 +341,29 @@ def test_default_settings_are_valid() -> None:
         validate_settings(cfg)
 
 
+def test_a_settings_range_travels_with_its_field() -> None:
+    """The check is the one declared beside the field, whatever the field is called; a number
+    without one must be finite and non-negative."""
+    from idsplat_ns.ranges import UNIT, bounded
+    from idsplat_ns.runs.settings_checks import validate_settings
+
+    @dataclasses.dataclass
+    class Inner:
+        renamed_sigma: float = bounded(0.5, UNIT)  # a name that no rule could guess
+        count: int = 3
+
+    @dataclasses.dataclass
+    class Outer:
+        inner: Inner = dataclasses.field(default_factory=Inner)
+
+    validate_settings(Outer(Inner(renamed_sigma=0.0)))  # in [0, 1], though a sigma of 0 would be refused by name
+    for inner, words in ((Inner(renamed_sigma=1.5), "--inner.renamed-sigma 1.5: must be a number in [0, 1]"),
+                         (Inner(count=-1), "--inner.count -1: must be a number in [0, inf)")):
+        with pytest.raises(IDSplatError) as info:
+            validate_settings(Outer(inner))
+        assert words in _one_line(info.value)
+
+
 @pytest.mark.parametrize("edit,option", [c[1:] for c in SETTING_CASES], ids=[c[0] for c in SETTING_CASES])
 def test_bad_setting_fails_in_one_line(edit, option: str) -> None:
     from idsplat_ns.runs.settings_checks import validate_settings

@@ -31,6 +31,7 @@ import numpy as np
 
 from idsplat_ns.instances.registration import frame_surface_normals
 from idsplat_ns.instances.tracks import InstanceTracks
+from idsplat_ns.ranges import Range, bounded
 
 # Typical (length, width) in metres per class keyword; the first keyword found in the label wins.
 DEFAULT_CLASS_SIZES: tuple[tuple[str, float, float], ...] = (
@@ -59,7 +60,7 @@ class AmodalCentreConfig:
     """False keeps the paper's origin (middle of the densest view's box)."""
     class_sizes: tuple[tuple[str, float, float], ...] = field(default_factory=lambda: DEFAULT_CLASS_SIZES)
     """(label keyword, typical length, typical width) in metres; labels matching none are left as they are."""
-    trim: float = 0.02
+    trim: float = bounded(0.02, Range(0, 0.5, high_open=True))
     """Fraction of the points ignored at each end of each axis (stray points from mask bleeding)."""
     ground_contact: bool = True
     """Put the centre's height midway between the lidar ground under the instance and its highest

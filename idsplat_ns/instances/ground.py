@@ -23,19 +23,20 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from idsplat_ns.errors import IDSplatError
+from idsplat_ns.ranges import POSITIVE, bounded
 
 
 @dataclass(frozen=True)
 class GroundConfig:
     """Settings of the lidar ground surface (:class:`GroundSurface`)."""
 
-    cell_size: float = 0.5
+    cell_size: float = bounded(0.5, POSITIVE)
     """Metres: side of the square cells the lidar points are binned in."""
     cell_rank: int = 2
     """A cell's height is its ``cell_rank``-th lowest point (0-based): the lowest few are
     discarded as noise (multipath returns below the road). A cell with fewer points uses its
     highest."""
-    search_radius: float = 4.0
+    search_radius: float = bounded(4.0, POSITIVE)
     """Metres around a query position whose cells the ground plane is fitted to (a car's
     footprint and a margin where the lidar sees the road beside it)."""
     min_cells: int = 6

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from idsplat_ns.data.geometry import make_pose, rot_z, wrap_angle, yaw_of
+from idsplat_ns.ranges import UNIT, bounded
 
 
 @dataclass(frozen=True)
@@ -45,7 +46,7 @@ class HeadingFlipConfig:
     neighbours: int = 4
     """The direction of travel at a frame is the mean of the unit directions towards (or from) its
     this many nearest-in-time measurements (1: the nearest only)."""
-    min_agreement: float = 0.5
+    min_agreement: float = bounded(0.5, UNIT)
     """No direction of travel where the mean of those unit directions is shorter than this (they
     disagree: the frame or its neighbours are misplaced)."""
     agree_angle: float = math.radians(45.0)

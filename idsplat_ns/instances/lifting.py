@@ -31,6 +31,7 @@ from idsplat_ns.data.rolling_shutter import camera_paths, project_rolling
 from idsplat_ns.data.scene import Scene
 from idsplat_ns.instances.cache import load_npz, save_npz
 from idsplat_ns.instances.masks.base import InstanceMaskSet
+from idsplat_ns.ranges import POSITIVE, UNIT, bounded
 
 
 @dataclass(frozen=True)
@@ -39,7 +40,7 @@ class LiftingConfig:
 
     erosion_px: int = 3
     """Each instance mask is eroded by this many pixels before projection (0 disables: ablation a)."""
-    min_kept_area: float = 0.5
+    min_kept_area: float = bounded(0.5, UNIT)
     """Ours, not the paper's: a mask is eroded by the largest radius up to ``erosion_px`` that keeps at
     least this fraction of its pixels, so a far object a few pixels tall is trimmed less or not at all
     instead of vanishing (its mounting-offset parallax is small anyway). 0 erodes every mask by
@@ -48,13 +49,13 @@ class LiftingConfig:
     """Metres: lidar points farther from the sensor are ignored."""
     use_dbscan: bool = True
     """Keep only the largest DBSCAN cluster of each instance and frame (False: ablation b)."""
-    dbscan_eps: float = 0.5
+    dbscan_eps: float = bounded(0.5, POSITIVE)
     """DBSCAN neighbourhood radius in metres."""
     dbscan_min_samples: int = 10
     """DBSCAN minimum neighbours of a core point."""
     min_points: int = 10
     """Observations (instance at one frame) with fewer points are dropped."""
-    merge_overlap: float = 0.3
+    merge_overlap: float = bounded(0.3, UNIT)
     """Two IDs are one object when, at one frame, this fraction of the smaller one's points are shared."""
     rolling_shutter: bool = True
     """Project into rolling-shutter images with each line's camera pose (no effect on global-shutter

@@ -13,6 +13,7 @@ from typing import Optional
 import numpy as np
 
 from idsplat_ns.data.tracks import class_from_size_speed
+from idsplat_ns.ranges import ANY, AT_LEAST_ONE, POSITIVE, UNIT, bounded
 
 
 @dataclass(frozen=True)
@@ -22,7 +23,7 @@ class LidarMotionConfig:
     max_range: float = 80.0
     """Metres from the sensor: farther points are ignored (too sparse to cluster); the range
     instance lifting uses, so that a vehicle is found wherever it can be lifted."""
-    ground_cell: float = 0.5
+    ground_cell: float = bounded(0.5, POSITIVE)
     """Metres: side of the ground height cells."""
     ground_rank: int = 2
     """A cell's ground height is its ``ground_rank``-th lowest point (the lowest are noise)."""
@@ -30,9 +31,9 @@ class LidarMotionConfig:
     """Metres above the ground a point must be to belong to an object."""
     max_height: float = 4.0
     """Metres above the ground above which points are ignored (tree tops, bridges)."""
-    cluster_eps: float = 0.7
+    cluster_eps: float = bounded(0.7, POSITIVE)
     """DBSCAN neighbourhood radius, metres."""
-    cluster_min_samples: int = 5
+    cluster_min_samples: int = bounded(5, AT_LEAST_ONE)
     """DBSCAN core-point neighbour count."""
     cluster_voxel: float = 0.1
     """Metres: points are clustered as voxels of this side, weighted by their point counts
@@ -50,7 +51,7 @@ class LidarMotionConfig:
     """Radians: a ray of another sweep tests a point only when its direction is this close."""
     free_margin: float = 0.4
     """Metres: a ray ending farther than the point by this passed through it (free space)."""
-    evidence_offsets_s: tuple[float, ...] = (-1.0, -0.5, 0.5, 1.0)
+    evidence_offsets_s: tuple[float, ...] = bounded((-1.0, -0.5, 0.5, 1.0), ANY)
     """Seconds: sweeps at these offsets (the nearest to each) give free-space evidence."""
     min_evidence: int = 8
     """Points with evidence needed for a cluster's motion score to count."""
@@ -64,10 +65,10 @@ class LidarMotionConfig:
     """Seconds a track must span for its velocity, and so its compensated score, to be trusted:
     static structure passed by the ego drifts in centroid (other faces come into view) for a few
     sweeps; compensated by that drift, its edge points read free."""
-    self_cover_radius: float = 0.5
+    self_cover_radius: float = bounded(0.5, POSITIVE)
     """Metres: a point lies in the object's moved footprint when one of its own points, moved,
     is this close on the ground."""
-    moving_score: float = 0.6
+    moving_score: float = bounded(0.6, UNIT)
     """A track whose median motion score exceeds this is moving."""
     min_displacement: float = 1.5
     """Metres: a moving track's centroid must travel at least this far over its life."""

@@ -20,28 +20,29 @@ from scipy.spatial import cKDTree
 
 from idsplat_ns._compat.libusb import import_open3d
 from idsplat_ns.data.geometry import make_pose, so3_exp
+from idsplat_ns.ranges import AT_LEAST_ONE, OPEN_UNIT, UNIT, Range, bounded
 
 
 @dataclass(frozen=True)
 class RegistrationConfig:
     """RANSAC registration settings; defaults are the paper's (supplementary, "Trajectory estimation")."""
 
-    max_points: int = 5000
+    max_points: int = bounded(5000, AT_LEAST_ONE)
     """Source and target are randomly sub-sampled to at most this many points."""
-    similarity_threshold: float = 0.8
+    similarity_threshold: float = bounded(0.8, Range(-1, 1))
     """Minimum cosine similarity of a feature correspondence."""
-    max_iterations: int = 100_000
+    max_iterations: int = bounded(100_000, AT_LEAST_ONE)
     """Upper bound on RANSAC hypotheses (three correspondences each)."""
-    batch_size: int = 1000
+    batch_size: int = bounded(1000, AT_LEAST_ONE)
     """Hypotheses generated and scored together in one vectorised batch."""
-    confidence: float = 0.9999
+    confidence: float = bounded(0.9999, OPEN_UNIT)
     """Stop early once this probability of having drawn an all-inlier sample is reached
     (standard adaptive RANSAC); 1.0 always runs ``max_iterations``."""
     inlier_distance: float = 0.10
     """Metres: a correspondence (or a target point, for fitness) within this distance is an inlier."""
-    fitness_threshold: float = 0.5
+    fitness_threshold: float = bounded(0.5, UNIT)
     """A registration succeeds when at least this fraction of target points are inliers."""
-    min_correspondences: int = 3
+    min_correspondences: int = bounded(3, Range(3, integer=True))
     """Fewer correspondences than this (after the similarity threshold) is a failure."""
     min_sample_area: float = 1e-3
     """Square metres: samples whose triangle is smaller than this are collinear (degenerate) and skipped."""

@@ -28,6 +28,7 @@ from scipy.spatial import cKDTree
 
 from idsplat_ns.instances.lifting import InstanceObservation, LiftedInstances
 from idsplat_ns.instances.tracks import InstanceTrack, InstanceTracks
+from idsplat_ns.ranges import UNIT, bounded
 
 
 @dataclass(frozen=True)
@@ -44,10 +45,10 @@ class StaticConversionConfig:
     overlap_distance: float = 0.10
     """Metres: a point agrees with the other frames when one of their points is this close
     (the registration's inlier distance)."""
-    overlap_point_fraction: float = 0.5
+    overlap_point_fraction: float = bounded(0.5, UNIT)
     """A frame agrees with no motion when at least this fraction of its points agree (the
     registration's fitness threshold)."""
-    overlap_frame_fraction: float = 0.8
+    overlap_frame_fraction: float = bounded(0.8, UNIT)
     """An instance is stationary when at least this fraction of its observed frames agree; a car
     that parks for part of the sequence and drives for the rest stays dynamic."""
     overlap_min_points: int = 10

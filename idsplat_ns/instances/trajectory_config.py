@@ -9,6 +9,7 @@ from typing import Literal, Optional
 from idsplat_ns.instances.heading_flips import HeadingFlipConfig
 from idsplat_ns.instances.registration import RegistrationConfig
 from idsplat_ns.instances.segment_linking import SegmentLinkConfig
+from idsplat_ns.ranges import UNIT, bounded
 
 
 @dataclass(frozen=True)
@@ -48,7 +49,7 @@ class TrajectoryConfig:
     that that deviation in either frame makes over their baseline, times the time extrapolated
     (motion_prior.prediction_gate). Two frames 0.2 s apart, one slid 1.1 m along a car's flat
     side, put the frame before them 1.7 m from the prediction."""
-    first_pass_min_seen_fraction: Optional[float] = 0.9
+    first_pass_min_seen_fraction: Optional[float] = bounded(0.9, UNIT)
     """Ours, with the chain only: the first pass leaves to the chain the observations of which the
     cameras see less than this share of the instance's lidar points (known for lidar-motion
     instances; the rest has no pixel and is not kept). A bus passing beside the ego is cut by the

@@ -35,6 +35,7 @@ import torch.nn.functional as F
 from idsplat_ns.model.lidar_head import LidarHeadOutput
 from idsplat_ns.model.lidar_render import LidarRayBatch
 from idsplat_ns.render import LidarRender
+from idsplat_ns.ranges import FRACTION, bounded
 
 
 @dataclass
@@ -51,7 +52,7 @@ class LidarLossConfig:
     """Weight of the binary cross-entropy on the ray-drop logit over all rays."""
     line_of_sight_margin: float = 0.8
     """Metres before the measured range where the line-of-sight loss stops counting (SplatAD: 0.8)."""
-    depth_quantile: float = 0.95
+    depth_quantile: float = bounded(0.95, FRACTION)
     """Returned rays with a squared depth error at or above this quantile of the batch are left out
     of the depth, line-of-sight and intensity terms (SplatAD: 0.95; 1.0 keeps every ray)."""
 

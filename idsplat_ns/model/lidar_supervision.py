@@ -22,6 +22,7 @@ from idsplat_ns.data.lidar import LidarSweep
 from idsplat_ns.data.scene import Scene
 from idsplat_ns.model.lidar_losses import LidarLossConfig, lidar_losses
 from idsplat_ns.model.lidar_render import LidarRayBatch, sample_rays
+from idsplat_ns.ranges import AT_LEAST_ONE, OPEN_UNIT, POSITIVE, bounded
 
 
 @dataclass
@@ -30,28 +31,28 @@ class LidarConfig:
 
     enabled: bool = True
     """Supervise with lidar when the scene has lidar (False: camera-only, no lidar head)."""
-    rays_per_step: int = 16384
+    rays_per_step: int = bounded(16384, AT_LEAST_ONE)
     """Rays drawn from one training sweep per lidar step (the loss is a mean over them). On the CPU
     the cost of a lidar step hardly depends on it (posing and projecting the Gaussians dominate)."""
-    every_n_steps: int = 1
+    every_n_steps: int = bounded(1, AT_LEAST_ONE)
     """Lidar step cadence: every n-th training step (paper: every step)."""
-    num_time_bins: int = 4
+    num_time_bins: int = bounded(4, AT_LEAST_ONE)
     """Time bins per rendered sweep: instances are posed at each bin's centre time."""
     losses: LidarLossConfig = field(default_factory=LidarLossConfig)
     """Loss weights, line-of-sight margin and depth quantile."""
-    head_hidden: int = 32
+    head_hidden: int = bounded(32, AT_LEAST_ONE)
     """Hidden width of the 2-layer lidar head (paper: 32)."""
-    azimuth_resolution_deg: float = 0.2
+    azimuth_resolution_deg: float = bounded(0.2, POSITIVE)
     """Angular grid cell of the lidar rasterizer in azimuth (degrees)."""
-    elevation_resolution_deg: float = 0.2
+    elevation_resolution_deg: float = bounded(0.2, POSITIVE)
     """Angular grid cell of the lidar rasterizer in elevation (degrees)."""
     near_plane: float = 0.2
     """Gaussians nearer than this to the sensor (metres) are not rendered (SplatAD: 0.2)."""
-    far_plane: float = 300.0
+    far_plane: float = bounded(300.0, POSITIVE)
     """Gaussians farther than this (metres) are not rendered (SplatAD: 300)."""
     eval_max_rays_per_sweep: Optional[int] = None
     """Evaluate on at most this many rays of each held-out sweep (None: every ray)."""
-    drop_threshold: float = 0.5
+    drop_threshold: float = bounded(0.5, OPEN_UNIT)
     """A ray is predicted dropped when its ray-drop probability is at least this (metrics, point cloud)."""
     compositor: Literal["auto", "compiled", "torch", "triton"] = "auto"
     """Lidar tile compositor: ``auto`` (compiled loops on the CPU, Triton kernels on CUDA where Triton

@@ -30,6 +30,7 @@ from idsplat_ns.errors import IDSplatError
 from idsplat_ns.model.gaussians import GaussianSet
 from idsplat_ns.model.mcmc_relocation import relocation_update, sample_proportional
 from idsplat_ns.render.projection import covariance_3d
+from idsplat_ns.ranges import AT_LEAST_ONE, UNIT, Range, bounded
 
 # Upper bound for relocated opacities: the largest float32 value below 1 (finite logit).
 _MAX_OPACITY = 1.0 - 2.0**-24
@@ -39,7 +40,7 @@ _MAX_OPACITY = 1.0 - 2.0**-24
 class MCMCConfig:
     """Hyperparameters of MCMC densification (defaults: gsplat 1.4.0's MCMCStrategy and the paper)."""
 
-    cap_max: int = 10_000_000
+    cap_max: int = bounded(10_000_000, AT_LEAST_ONE)
     """Most Gaussians growth may reach (the paper: 10M; pass a cap that follows the scene's size)."""
     noise_lr: float = 5e5
     """Noise scale, multiplied by the current learning rate of the means."""
@@ -47,9 +48,9 @@ class MCMCConfig:
     """First step at which relocation and growth may run."""
     refine_stop_iter: int = 25_000
     """Relocation and growth run at steps before this one (noise continues after it)."""
-    refine_every: int = 100
+    refine_every: int = bounded(100, AT_LEAST_ONE)
     """Relocation and growth run at steps that are multiples of this."""
-    min_opacity: float = 0.005
+    min_opacity: float = bounded(0.005, Range(0, 1, high_open=True))
     """Gaussians with a lower opacity are dead and get relocated; relocated opacities are floored here."""
     growth_rate: float = 0.05
     """Fraction by which the number of Gaussians grows at each refinement step (until cap_max)."""
@@ -57,7 +58,7 @@ class MCMCConfig:
     """Weight of the opacity regulariser (mean activated opacity)."""
     scale_reg: float = 1e-3
     """Weight of the scale regulariser (mean activated scale)."""
-    noise_gate_opacity: float = 0.005
+    noise_gate_opacity: float = bounded(0.005, UNIT)
     """Opacity at which the noise gate is one half: sigmoid(-k (o - this))."""
     noise_gate_sharpness: float = 100.0
     """Slope k of the noise gate: noise fades out for Gaussians more opaque than the gate opacity."""

@@ -35,21 +35,22 @@ from idsplat_ns.model.lidar_head import LidarHead, LidarHeadOutput
 from idsplat_ns.model.lidar_render import LidarRayBatch, PosedBins, render_lidar_rays_binned
 from idsplat_ns.render import LidarRender, rasterize_camera
 from idsplat_ns.render.camera import CAMERA_BACKENDS
+from idsplat_ns.ranges import AT_LEAST_ONE, bounded
 
 
 @dataclass
 class DecoderConfig:
     """Sizes of the appearance path (paper: 13-d features, 8-d sensor embeddings, CNN 32/3/2)."""
 
-    feature_dim: int = 13
+    feature_dim: int = bounded(13, AT_LEAST_ONE)
     """Per-Gaussian feature vector size."""
     sensor_embedding_dim: int = 8
     """Per-camera appearance embedding size."""
-    hidden: int = 32
+    hidden: int = bounded(32, AT_LEAST_ONE)
     """Channels of the RGB decoder CNN."""
-    kernel: int = 3
+    kernel: int = bounded(3, AT_LEAST_ONE)
     """Kernel size of the RGB decoder CNN."""
-    blocks: int = 2
+    blocks: int = bounded(2, AT_LEAST_ONE)
     """Residual blocks of the RGB decoder CNN."""
 
 

@@ -31,6 +31,7 @@ from idsplat_ns.data.waymo.v1 import read_v1
 from idsplat_ns.errors import IDSplatError
 from idsplat_ns.nerfstudio.builtin_scene import builtin_street
 from idsplat_ns.nerfstudio.model_inputs import SPLIT_KEY, SplitData
+from idsplat_ns.ranges import AT_LEAST_ONE, FRACTION, POSITIVE, Range, bounded
 
 CONSOLE = Console()
 
@@ -47,15 +48,15 @@ class IDSplatDataParserConfig(DataParserConfig):
     """Sequence to load (each dataparser says what it takes)."""
     cameras: Optional[Tuple[str, ...]] = None
     """Camera names to use (default: every camera of the sequence)."""
-    start_frame: int = 0
+    start_frame: int = bounded(0, Range(0, integer=True))
     """First frame index to keep."""
-    end_frame: Optional[int] = None
+    end_frame: Optional[int] = bounded(None, AT_LEAST_ONE)
     """One past the last frame index to keep (None: to the end)."""
-    downscale_factor: float = 1.0
+    downscale_factor: float = bounded(1.0, POSITIVE)
     """Divide the image resolution by this (2 halves width and height)."""
-    train_fraction: float = 0.5
+    train_fraction: float = bounded(0.5, FRACTION)
     """Fraction of frames used for training; the rest, linearly spaced, are held out (paper: 0.5 on PandaSet)."""
-    eval_every: Optional[int] = None
+    eval_every: Optional[int] = bounded(None, Range(2, integer=True))
     """Hold out every k-th frame instead (overrides train_fraction), as some protocols do."""
     load_lidar: bool = True
     """Read lidar sweeps (initialisation; lidar supervision in the full model)."""
@@ -114,7 +115,7 @@ class PandaSetDataParserConfig(IDSplatDataParserConfig):
     subcommand: ClassVar[str] = DATAPARSER_SUBCOMMANDS["pandaset"]
 
     _target: Type = field(default_factory=lambda: IDSplatDataParser)
-    lidar_sensors: Tuple[int, ...] = (0,)
+    lidar_sensors: Tuple[int, ...] = bounded((0,), Range(0, 1, integer=True))
     """PandaSet lidars to use: 0 the spinning Pandar64, 1 the front PandarGT."""
 
     def load_scene(self) -> Scene:
@@ -145,9 +146,9 @@ class WaymoDataParserConfig(IDSplatDataParserConfig):
     """Lidars to load (TOP, FRONT, SIDE_LEFT, SIDE_RIGHT, REAR); default all five."""
     second_return: bool = True
     """Also keep second returns (extra rays where they hit)."""
-    train_fraction: float = 0.75
+    train_fraction: float = bounded(0.75, FRACTION)
     """Fraction of frames used for training when eval_every is None."""
-    eval_every: Optional[int] = 4
+    eval_every: Optional[int] = bounded(4, Range(2, integer=True))
     """Hold out every 4th frame: the paper's AD-GS / SplatFlow protocols on Waymo (75% train)."""
 
     def _detected(self):
@@ -194,9 +195,9 @@ class AutoDataParserConfig(IDSplatDataParserConfig):
     """Waymo v1 folder of segments: which one."""
     context_name: Optional[str] = None
     """Waymo v2 root: which context."""
-    train_fraction: Optional[float] = None  # type: ignore[assignment]
+    train_fraction: Optional[float] = bounded(None, FRACTION)  # type: ignore[assignment]
     """Fraction of frames used for training (default: the format's, 0.5 PandaSet, Waymo every 4th held out)."""
-    eval_every: Optional[int] = None
+    eval_every: Optional[int] = bounded(None, Range(2, integer=True))
     """Hold out every k-th frame (overrides train_fraction)."""
     builtin_preset: str = "small"
     """Without --data: the built-in street's preset (tiny, small, bench)."""
@@ -206,7 +207,7 @@ class AutoDataParserConfig(IDSplatDataParserConfig):
     """Waymo: lidars to load (TOP, FRONT, SIDE_LEFT, SIDE_RIGHT, REAR); default all five."""
     second_return: bool = True
     """Waymo: also keep second returns (extra rays where they hit)."""
-    lidar_sensors: Tuple[int, ...] = (0,)
+    lidar_sensors: Tuple[int, ...] = bounded((0,), Range(0, 1, integer=True))
     """PandaSet: lidars to use, 0 the spinning Pandar64, 1 the front PandarGT."""
 
     def concrete(self) -> IDSplatDataParserConfig:

@@ -50,6 +50,7 @@ from idsplat_ns.nerfstudio.model_inputs import instance_inputs, split_data
 from idsplat_ns.nerfstudio.render_guard import check_render_tools
 from idsplat_ns.nerfstudio.viewer_controls import InstanceControls, in_viewer_render
 from idsplat_ns.nerfstudio.viewer_scene import start_view
+from idsplat_ns.ranges import POSITIVE, UNIT, bounded
 
 CONSOLE = Console()
 GAUSSIAN_GROUPS = GaussianSet.PARAM_NAMES
@@ -74,7 +75,7 @@ class IDSplatModelConfig(ModelConfig):
     """Ray colliders are for ray-marching models; a rasterizer renders whole cameras."""
     decoder: DecoderConfig = field(default_factory=DecoderConfig)
     """Feature, embedding and CNN sizes of the camera path."""
-    ssim_lambda: float = 0.2
+    ssim_lambda: float = bounded(0.2, UNIT)
     """Weight of (1 - SSIM); L1 gets 1 - ssim_lambda (paper: lambda_r = 0.8)."""
     resolution_schedule: Tuple[int, ...] = (3000, 6000)
     """Steps at which the render resolution doubles (paper: 1/4 until 3000, 1/2 until 6000, then full)."""
@@ -92,13 +93,13 @@ class IDSplatModelConfig(ModelConfig):
     """MCMC densification (relocation, growth to the cap, noise); False keeps the initial set."""
     mcmc: MCMCConfig = field(default_factory=MCMCConfig)
     """MCMC settings (paper / Kheradmand et al. defaults)."""
-    cap_factor: float = 3.0
+    cap_factor: float = bounded(3.0, POSITIVE)
     """Scene-sized Gaussian cap: this many times the initial count, at most ``mcmc.cap_max`` (paper 10M)."""
     lpips_backbone: Optional[Path] = None
     """Torchvision AlexNet or VGG16 weights file for LPIPS at evaluation; without it LPIPS is skipped with a note."""
     lpips_net: str = "alex"
     """LPIPS backbone: ``alex`` (paper's PandaSet protocol) or ``vgg`` (its Waymo protocols)."""
-    background_color: Tuple[float, float, float] = (0.5, 0.5, 0.5)
+    background_color: Tuple[float, float, float] = bounded((0.5, 0.5, 0.5), UNIT)
     """Initial learnable background colour behind all Gaussians."""
     lidar: LidarConfig = field(default_factory=LidarConfig)
     """Lidar supervision (rays per step, cadence, loss weights); used only when the scene has lidar."""
@@ -127,7 +128,7 @@ class IDSplatModelConfig(ModelConfig):
     camera_refinement: bool = False
     """Refine each camera's calibration: a rotation and translation per camera, in its own frame,
     for all its images (:mod:`idsplat_ns.model.camera_refinement`)."""
-    camera_refinement_prior: Tuple[float, float, float] = (1e-3, 1.0, 0.05)
+    camera_refinement_prior: Tuple[float, float, float] = bounded((1e-3, 1.0, 0.05), POSITIVE)
     """Weight of the calibration prior, and the correction it expects: degrees, metres."""
     camera_backend: Literal["auto", "gsplat", "torch"] = "auto"
     """Camera rasterizer: ``auto`` (gsplat on CUDA where it is installed, else the pure-torch tile

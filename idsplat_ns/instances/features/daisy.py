@@ -8,19 +8,20 @@ import cv2
 import numpy as np
 
 from idsplat_ns.instances.features.base import ImageFeatureExtractor
+from idsplat_ns.ranges import AT_LEAST_ONE, POSITIVE, bounded
 
 
 @dataclass(frozen=True)
 class DaisyConfig:
     """Settings of ``cv2.xfeatures2d.DAISY_create``."""
 
-    radius: float = 15.0
+    radius: float = bounded(15.0, POSITIVE)
     """Pixels from the centre to the outermost sampling ring."""
-    rings: int = 3
+    rings: int = bounded(3, AT_LEAST_ONE)
     """Number of rings (``q_radius``)."""
-    ring_histograms: int = 8
+    ring_histograms: int = bounded(8, AT_LEAST_ONE)
     """Histograms per ring (``q_theta``)."""
-    orientations: int = 8
+    orientations: int = bounded(8, AT_LEAST_ONE)
     """Gradient orientations per histogram (``q_hist``)."""
 
 

@@ -27,6 +27,7 @@ from idsplat_ns.errors import IDSplatError
 from idsplat_ns.instances.features.base import ImageFeatureExtractor, sample_bilinear
 from idsplat_ns.instances.onnx_session import model_identity, open_session
 from idsplat_ns.instances.options import cli_option
+from idsplat_ns.ranges import AT_LEAST_ONE, bounded
 
 IMAGENET_MEAN = np.array([0.485, 0.456, 0.406], np.float32)
 IMAGENET_STD = np.array([0.229, 0.224, 0.225], np.float32)
@@ -42,9 +43,9 @@ class Dinov3Config:
     """Name of the image input."""
     output_name: Optional[str] = None
     """Name of the feature output (None: the first output)."""
-    patch_size: int = 16
+    patch_size: int = bounded(16, AT_LEAST_ONE)
     """ViT patch size in pixels."""
-    short_side: int = 448
+    short_side: int = bounded(448, AT_LEAST_ONE)
     """The image's shorter side is resized to this (multiple of ``patch_size``)."""
     threads: int = 0
     """ONNX Runtime intra-op threads (0: its default)."""

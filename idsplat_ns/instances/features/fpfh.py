@@ -13,17 +13,18 @@ from idsplat_ns.data.images import load_rgb
 from idsplat_ns.data.scene import Scene
 from idsplat_ns.instances.features.base import PointFeatureExtractor, PointFeatures, sample_colors
 from idsplat_ns.instances.lifting import LiftedInstances
+from idsplat_ns.ranges import AT_LEAST_ONE, POSITIVE, bounded
 
 
 @dataclass(frozen=True)
 class FpfhConfig:
     """Neighbourhoods of the normal and histogram estimates (metres)."""
 
-    normal_radius: float = 0.3
+    normal_radius: float = bounded(0.3, POSITIVE)
     """Radius of the neighbourhood used to estimate normals."""
-    feature_radius: float = 0.6
+    feature_radius: float = bounded(0.6, POSITIVE)
     """Radius of the neighbourhood of each histogram."""
-    max_neighbours: int = 50
+    max_neighbours: int = bounded(50, AT_LEAST_ONE)
     """Cap on neighbours in either search."""
 
 

@@ -43,6 +43,7 @@ from idsplat_ns.instances.masks.base import PROMPT_CLASSES, InstanceMaskSet, Mas
 from idsplat_ns.instances.masks.bert_tokenizer import WordPieceTokenizer, caption_inputs
 from idsplat_ns.instances.onnx_session import model_identity, open_session
 from idsplat_ns.instances.options import cli_option
+from idsplat_ns.ranges import AT_LEAST_ONE, UNIT, bounded
 
 IMAGENET_MEAN = np.array([0.485, 0.456, 0.406], np.float32)
 IMAGENET_STD = np.array([0.229, 0.224, 0.225], np.float32)
@@ -65,21 +66,21 @@ class GroundedSam2Config:
     """SAM 2 mask-decoder ONNX file."""
     prompts: tuple[str, ...] = PROMPT_CLASSES
     """Class prompts (the paper's nine)."""
-    box_threshold: float = 0.35
+    box_threshold: float = bounded(0.35, UNIT)
     """A box is kept when its best token probability exceeds this."""
-    text_threshold: float = 0.25
+    text_threshold: float = bounded(0.25, UNIT)
     """A box is labelled with the prompt whose best token probability is highest, if above this."""
-    nms_iou: float = 0.7
+    nms_iou: float = bounded(0.7, UNIT)
     """Boxes overlapping a higher-scoring box by more than this IoU are dropped."""
     detector_short_side: int = 800
     """Shorter image side fed to the detector (when its input size is dynamic)."""
     detector_max_side: int = 1333
     """Longest side limit for the detector input."""
-    max_text_len: int = 256
+    max_text_len: int = bounded(256, AT_LEAST_ONE)
     """Token capacity of the detector's text branch."""
     min_mask_pixels: int = 50
     """Masks smaller than this are dropped."""
-    track_iou: float = 0.3
+    track_iou: float = bounded(0.3, UNIT)
     """Minimum mask IoU between consecutive detections of one object."""
     track_max_gap: int = 3
     """Frames a track may be unseen and still continue."""

@@ -9,27 +9,28 @@ from typing import Optional
 
 from idsplat_ns.errors import IDSplatError
 from idsplat_ns.instances.ground import GroundConfig
+from idsplat_ns.ranges import POSITIVE, UNIT, bounded
 
 
 @dataclass(frozen=True)
 class SmoothingConfig:
     """Noise levels, robust loss and iteration counts of the CT smoother."""
 
-    measurement_rot_sigma: float = 0.1
+    measurement_rot_sigma: float = bounded(0.1, POSITIVE)
     """Std of the pose measurement factors, rotation part [rad] (each axis)."""
-    measurement_trans_sigma: float = 0.2
+    measurement_trans_sigma: float = bounded(0.2, POSITIVE)
     """Std of the pose measurement factors, translation part [m] (each axis)."""
     huber_threshold: float = 1.0
     """Huber threshold (whitened units) of the measurement factors."""
-    motion_rot_sigma: float = 0.1
+    motion_rot_sigma: float = bounded(0.1, POSITIVE)
     """Std of the CT motion factor between successive states, rotation part [rad]."""
-    motion_trans_sigma: float = 0.2
+    motion_trans_sigma: float = bounded(0.2, POSITIVE)
     """Std of the CT motion factor between successive states, translation part [m]."""
-    motion_vertical_sigma: Optional[float] = 0.02
+    motion_vertical_sigma: Optional[float] = bounded(0.02, POSITIVE)
     """Ours: std [m] of the CT motion factor's vertical (motion-frame z) translation per step. A car
     follows the road: in its own pitched frame it does not move up or down, beyond its suspension.
     None: the isotropic ``motion_trans_sigma`` (the paper's)."""
-    motion_tilt_sigma: Optional[float] = 0.01
+    motion_tilt_sigma: Optional[float] = bounded(0.01, POSITIVE)
     """Ours: std [rad] of the CT motion factor's roll and pitch change per step (0.6 degrees).
     With the paper's 0.1 rad, the registrations' 1-5 degree pitch noise made the smoothed car climb
     and sink: the CT model moves it along its pitched x axis (measured on the synthetic street:
@@ -39,11 +40,11 @@ class SmoothingConfig:
     """Random walk on speed: std over a step of dt seconds is sqrt(speed_walk_rate * dt) [m/s]."""
     curvature_walk_rate: float = 1e-5
     """Random walk on curvature: std over a step is sqrt(curvature_walk_rate * dt) [1/m]."""
-    roll_pitch_sigma: float = 0.4
+    roll_pitch_sigma: float = bounded(0.4, POSITIVE)
     """Std of the roll and pitch prior of each pose in the motion frame (after the shared rotation)."""
-    curvature_sigma: float = 0.01
+    curvature_sigma: float = bounded(0.01, POSITIVE)
     """Std of the zero-mean curvature prior applied at every step [1/m]."""
-    turning_curvature_sigma: Optional[float] = 1.0
+    turning_curvature_sigma: Optional[float] = bounded(1.0, POSITIVE)
     """Ours: for a vehicle whose registrations turn by ``turning_min_heading_change`` or more, the
     curvature prior's std [1/m] (and ``turning_curvature_walk_rate`` its random walk), so that the
     curvature state carries the turn. With the paper's prior (0.01, a 100 m radius) and walk
@@ -72,14 +73,14 @@ class SmoothingConfig:
     """Levenberg-Marquardt iterations of the first (outlier-detection) pass."""
     final_iterations: int = 10
     """Maximum Levenberg-Marquardt iterations of the final pass, without the outliers."""
-    reconverge_below_inlier_fraction: float = 0.5
+    reconverge_below_inlier_fraction: float = bounded(0.5, UNIT)
     """When the single-iteration first pass keeps fewer than this fraction of the measurements,
     it has not converged (the initial guess was poor), and flagging from it would discard good
     measurements: the first pass is then iterated up to ``final_iterations`` and the outliers
     flagged again. Measured on the synthetic street (docs/smoothing.md): a moving pickup with 3
     gross outliers among 10 measurements kept 1 and was smoothed to a constant pose; reconverged,
     it keeps the 6 good ones. 0 always uses the paper's single iteration."""
-    heading_prior_sigma: Optional[float] = 0.02
+    heading_prior_sigma: Optional[float] = bounded(0.02, POSITIVE)
     """Ours: std [rad] of a prior that the motion frame's x axis (the direction of travel) lies
     along the vehicle's own box axis, found from its canonical points' vertical faces
     (``amodal_centre.box_heading``): vehicles do not drive sideways. Without it the shared rotation
@@ -131,10 +132,10 @@ class SmoothingConfig:
     min_noise_dt: float = 1e-3
     """Time steps shorter than this [s] use this value in the random-walk sigmas, so that
     nearly coincident timestamps do not make the random walks infinitely stiff."""
-    weak_speed_sigma: float = 100.0
+    weak_speed_sigma: float = bounded(100.0, POSITIVE)
     """Std [m/s] of a weak prior on the first speed; it only fixes the speed when no two
     measurements exist (a single measurement). Negligible otherwise."""
-    weak_shared_rotation_sigma: float = 3.0
+    weak_shared_rotation_sigma: float = bounded(3.0, POSITIVE)
     """Std [rad] of a weak prior that keeps the shared rotation at its initial value when the
     motion does not determine it (a stopped object). Negligible otherwise."""
     degenerate_directions: bool = True
@@ -146,7 +147,7 @@ class SmoothingConfig:
     degenerate_ratio: float = 0.2
     """A direction is not measured when its point-to-plane information is below this fraction of
     the frame's strongest direction's (0 measures every direction)."""
-    degenerate_sigma: float = 3.0
+    degenerate_sigma: float = bounded(3.0, POSITIVE)
     """Std [m] of a registration's translation along a direction it does not measure (about a
     car's half length: where a slide along a face can end)."""
     degenerate_min_facing_points: float = 10.0
@@ -159,7 +160,7 @@ class SmoothingConfig:
     degenerate_min_frame_points: int = 24
     """Frames with fewer points measure no direction and anchor none (their neighbourhoods are
     the whole view, not its surfaces)."""
-    degenerate_vertical_sigma: Optional[float] = 0.3
+    degenerate_vertical_sigma: Optional[float] = bounded(0.3, POSITIVE)
     """Ours: metres; a registration's position is never left freer than this vertically, even
     where its points show no surface facing up or down (a side or rear view). A car's points span
     its visible height, and the image features placed them: on the synthetic street such views
