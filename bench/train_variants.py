@@ -1,7 +1,7 @@
 """Train and evaluate named variants of ``idsplat-fast`` on one street with the plain commands a
 user would type (each printed before it runs; built by :mod:`idsplat_ns.batch.commands`, as
 ``idsplat-batch`` builds them), and print their results side by side. Shared by
-``bench_sensor_fidelity``, ``bench_deformation``, ``bench_exposure`` and ``bench_rule_dpsnr``."""
+``bench_sensor_fidelity``, ``bench_deformation``, ``bench_rig`` and ``bench_rule_dpsnr``."""
 
 from __future__ import annotations
 

@@ -325,6 +325,8 @@ SETTING_CASES = [
      "--pipeline.model.camera-refinement-prior"),
     ("camera-refinement-prior-negative-weight", _apply("pipeline.model.camera_refinement_prior", (-1.0, 1.0, 0.05)),
      "--pipeline.model.camera-refinement-prior"),
+    ("pose-refinement-prior-zero-size", _apply("pipeline.model.pose_refinement_prior", (1e-3, 0.5, 0.0)),
+     "--pipeline.model.pose-refinement-prior"),
 ]
 
 
@@ -504,7 +506,10 @@ def test_outputs_are_checked_before_any_work(tmp_path: Path) -> None:
     (["--exposure-drift", "-0.1"], ["--exposure-drift"]),
     (["--calibration-error-deg", "nan", "0"], ["--calibration-error-deg"]),
     (["--calibration-error-deg", "1", "45"], ["--calibration-error-deg", "-10 to 10"]),
-], ids=["drift-above-one", "drift-negative", "calibration-nan", "calibration-45-degrees"])
+    (["--pose-noise", "0.5", "-0.1"], ["--pose-noise", "0 to 2 metres"]),
+    (["--pose-noise", "inf", "0.1"], ["--pose-noise", "0 to 5 degrees"]),
+], ids=["drift-above-one", "drift-negative", "calibration-nan", "calibration-45-degrees", "pose-noise-negative",
+        "pose-noise-infinite"])
 def test_bad_rig_defect_option_of_idsplat_synth_fails_in_one_line(tmp_path: Path, options, words, monkeypatch, capsys) -> None:
     """idsplat-synth's rig defects out of range: one line naming the option, exit 2, nothing written."""
     from idsplat_ns.data.synthetic.cli import main

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from idsplat_ns.model.exposure import ImageExposure, interpolation_weights
+from idsplat_ns.model.camera_knots import interpolation_weights
+from idsplat_ns.model.exposure import ImageExposure
 
 
 def test_interpolation_is_numpys_with_clamped_ends() -> None:
@@ -86,8 +87,9 @@ def test_the_generator_drifts_exposure_only_when_asked() -> None:
 
 
 @pytest.mark.slow
-def test_a_run_with_exposure_and_camera_refinement_trains_and_reloads(tiny_street, tmp_path) -> None:
-    """Both sensor corrections in one tiny run (tests/test_camera_refinement.py has the rig's maths)."""
+def test_a_run_with_every_sensor_correction_trains_and_reloads(tiny_street, tmp_path) -> None:
+    """Exposure, calibration and per-image pose corrections in one tiny run
+    (tests/test_camera_refinement.py has the poses' maths)."""
     from nerfstudio.scripts.train import _set_random_seed
     from nerfstudio.utils.eval_utils import eval_setup
 
@@ -98,6 +100,7 @@ def test_a_run_with_exposure_and_camera_refinement_trains_and_reloads(tiny_stree
     cfg.pipeline.datamanager.instance_mode = "oracle"
     cfg.pipeline.model.exposure = True
     cfg.pipeline.model.camera_refinement = True
+    cfg.pipeline.model.pose_refinement = True
     cfg.pipeline.model.num_random_points = 2_000
     cfg.vis, cfg.output_dir, cfg.timestamp, cfg.steps_per_eval_image = "tensorboard", tmp_path, "run", 10**9
     cfg.save_config()
@@ -108,8 +111,16 @@ def test_a_run_with_exposure_and_camera_refinement_trains_and_reloads(tiny_stree
     exposure, rig = trainer.pipeline.model.exposure, trainer.pipeline.model.rig_correction
     assert exposure is not None and float(exposure.affine.abs().sum()) > 0  # it learned something
     assert rig is not None and float(rig.rotation.abs().sum()) > 0
+    poses = trainer.pipeline.model.pose_correction
+    assert poses is not None and float(poses.translation.abs().sum()) > 0
     _, pipeline, _, _ = eval_setup(cfg.get_base_dir() / "config.yml", test_mode="test")
     assert torch.equal(pipeline.model.exposure.affine.cpu(), exposure.affine.detach().cpu())
     assert torch.equal(pipeline.model.rig_correction.rotation.cpu(), rig.rotation.detach().cpu())
+    assert torch.equal(pipeline.model.pose_correction.translation.cpu(), poses.translation.detach().cpu())
+    assert torch.equal(pipeline.model.pose_correction.times.cpu(), poses.times.cpu())
     metrics = pipeline.get_average_eval_image_metrics()
     assert np.isfinite(metrics["psnr"])
+    learned = metrics["camera_corrections"]  # ns-eval's JSON: per camera, what each correction learned
+    assert set(learned) == set(pipeline.model.camera_names)
+    assert learned["front_camera"]["calibration_deg"] == pytest.approx(rig.summary()[0][0])
+    assert learned["front_camera"]["image_pose_median_m"] == pytest.approx(poses.summary()[0][1])

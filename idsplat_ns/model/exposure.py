@@ -4,10 +4,9 @@ Auto-exposure changes an image's brightness from frame to frame (gains of 0.7-1.
 which no per-camera term can absorb. Each training image gets an affine colour transform
 ``rgb' = (I + A) rgb + b`` (``A`` [3, 3], ``b`` [3]; 12 numbers, zero at the start: identity),
 learned with the scene and kept near identity by a prior (:meth:`ImageExposure.prior`). Any other
-time of the same camera (its held-out frames, the viewer's slider) takes the transform linearly
-interpolated between that camera's two nearest training images in time, clamped at the ends; a
-camera without training images is left as rendered. DriveStudio and OmniRe fit such an affine per
-image; the interpolation is what makes held-out frames comparable without looking at them.
+time of the same camera takes the transform interpolated in time
+(:class:`~idsplat_ns.model.camera_knots.CameraKnots`); a camera without training images is left as
+rendered. DriveStudio and OmniRe fit such an affine per image.
 """
 
 from __future__ import annotations
@@ -18,63 +17,20 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-
-def interpolation_weights(knots: Tensor, time: float) -> tuple[int, int, float]:  # knots: [K] sorted, K >= 1
-    """``(i, j, w)``: the value at ``time`` is ``(1 - w) v[i] + w v[j]`` (clamped outside the knots)."""
-    k = int(knots.shape[0])
-    if k == 1:
-        return 0, 0, 0.0
-    j = int(torch.searchsorted(knots, torch.tensor([time], dtype=knots.dtype, device=knots.device), right=True)[0])
-    j = min(max(j, 1), k - 1)
-    t0, t1 = float(knots[j - 1]), float(knots[j])
-    w = min(max((time - t0) / (t1 - t0), 0.0), 1.0) if t1 > t0 else 0.0
-    return j - 1, j, w
+from idsplat_ns.model.camera_knots import CameraKnots
 
 
-class ImageExposure(nn.Module):
+class ImageExposure(CameraKnots):
     """One affine colour transform per training image, interpolated in time per camera."""
 
     def __init__(self, knot_times: Sequence[np.ndarray]) -> None:
-        """``knot_times[c]``: the times [s] of camera ``c``'s training images (any order; repeats
-        are one knot)."""
-        super().__init__()
-        per_camera = [np.unique(np.asarray(t, dtype=np.float64)) for t in knot_times]
-        starts = np.concatenate([[0], np.cumsum([len(t) for t in per_camera])]).astype(np.int64)
-        times = np.concatenate(per_camera) if per_camera else np.zeros(0)
-        self.register_buffer("times", torch.from_numpy(times))  # [K] all cameras' knots, camera by camera
-        self.register_buffer("starts", torch.from_numpy(starts))  # [C + 1] camera c's knots: starts[c]:starts[c+1]
-        self.affine = nn.Parameter(torch.zeros(int(starts[-1]), 3, 4))  # [K, 3, 4] (A | b), 0: identity
-
-    @classmethod
-    def like(cls, state_dict: dict, prefix: str) -> "ImageExposure":
-        """An instance of the checkpoint's shape (its knots), to load ``state_dict`` into."""
-        times, starts = state_dict[prefix + "times"], state_dict[prefix + "starts"]
-        return cls([times[int(starts[c]):int(starts[c + 1])].cpu().numpy() for c in range(len(starts) - 1)])
-
-    @classmethod
-    def for_images(cls, images, camera_names: Sequence[str]) -> "ImageExposure":
-        """Knots at the times of ``images`` (the training images: ``camera`` and ``time`` [s]),
-        one row per camera of ``camera_names``."""
-        times: list[list[float]] = [[] for _ in camera_names]
-        for im in images:
-            times[list(camera_names).index(im.camera)].append(float(im.time))
-        return cls([np.asarray(t) for t in times])
-
-    @property
-    def num_cameras(self) -> int:
-        return int(self.starts.shape[0]) - 1
+        """``knot_times[c]``: the times [s] of camera ``c``'s training images."""
+        super().__init__(knot_times)
+        self.affine = nn.Parameter(torch.zeros(self.num_knots, 3, 4))  # [K, 3, 4] (A | b), 0: identity
 
     def transform_at(self, sensor: int, time: Optional[float]) -> Optional[Tensor]:
         """The [3, 4] correction ``(A | b)`` of camera ``sensor`` at ``time`` [s]; None where there is none."""
-        if time is None or not 0 <= sensor < self.num_cameras:
-            return None
-        s, e = int(self.starts[sensor]), int(self.starts[sensor + 1])
-        if e == s:
-            return None
-        i, j, w = interpolation_weights(self.times[s:e], float(time))
-        if w == 0.0:
-            return self.affine[s + i]
-        return (1.0 - w) * self.affine[s + i] + w * self.affine[s + j]
+        return self.value_at(self.affine, sensor, time)
 
     def forward(self, rgb: Tensor, sensor: int, time: Optional[float]) -> Tensor:  # rgb: [..., 3]
         """``rgb`` corrected as camera ``sensor`` saw it at ``time`` (unchanged without a transform)."""

@@ -29,7 +29,7 @@ from idsplat_ns.eval.image_metrics import psnr, ssim
 from idsplat_ns.eval.lpips import LPIPS
 from idsplat_ns.eval.object_diagnosis import object_pixel_errors
 from idsplat_ns.instances.static_conversion import StaticConversionConfig, convert_static_instances
-from idsplat_ns.model.camera_refinement import RigCorrection
+from idsplat_ns.model.camera_refinement import ImagePoseCorrection, RigCorrection
 from idsplat_ns.model.camera_shutter import ShutterLookup
 from idsplat_ns.model.deformation import DeformationConfig, InstanceDeformation, deformable_instance_ids
 from idsplat_ns.model.exposure import ImageExposure
@@ -130,6 +130,11 @@ class IDSplatModelConfig(ModelConfig):
     for all its images (:mod:`idsplat_ns.model.camera_refinement`)."""
     camera_refinement_prior: Tuple[float, float, float] = bounded((1e-3, 1.0, 0.05), POSITIVE)
     """Weight of the calibration prior, and the correction it expects: degrees, metres."""
+    pose_refinement: bool = False
+    """Refine each image's pose: a rotation and translation per training image, in its camera's
+    frame, interpolated in time for the camera's other frames (:mod:`idsplat_ns.model.camera_refinement`)."""
+    pose_refinement_prior: Tuple[float, float, float] = bounded((1e-3, 0.5, 0.1), POSITIVE)
+    """Weight of the per-image pose prior, and the correction it expects: degrees, metres."""
     camera_backend: Literal["auto", "gsplat", "torch"] = "auto"
     """Camera rasterizer: ``auto`` (gsplat on CUDA where it is installed, else the pure-torch tile
     rasterizer), ``gsplat`` (CUDA only; compiled on first use, minutes) or ``torch`` (any device:
@@ -179,6 +184,8 @@ class IDSplatModel(Model):
         # Knots at the training images (a checkpoint brings its own: load_state_dict).
         self.exposure = ImageExposure.for_images(split.images, self.camera_names) if self.config.exposure else None
         self.rig_correction = RigCorrection(len(self.camera_names)) if self.config.camera_refinement else None
+        self.pose_correction = (ImagePoseCorrection.for_images(split.images, self.camera_names)
+                                if self.config.pose_refinement else None)
         self.lidar = LidarSupervisor(lidar_sweeps, self.config.lidar, seed=self.config.init_seed) if lidar_sweeps else None
         cap = min(self.config.mcmc.cap_max, int(self.config.cap_factor * max(gaussians.num, 1)))
         self.mcmc_config = replace(self.config.mcmc, cap_max=cap)
@@ -299,6 +306,8 @@ class IDSplatModel(Model):
             groups["exposure"] = [self.exposure.affine]
         if self.rig_correction is not None:
             groups["camera_refinement"] = list(self.rig_correction.parameters())
+        if self.pose_correction is not None:
+            groups["pose_refinement"] = list(self.pose_correction.parameters())
         return groups
 
     def load_state_dict(self, state_dict, strict: bool = True, **kwargs):  # type: ignore[override]
@@ -312,6 +321,8 @@ class IDSplatModel(Model):
         self.exposure = ImageExposure.like(state_dict, "exposure.").to(self.device) if "exposure.affine" in state_dict else None
         rig = state_dict.get("rig_correction.rotation")  # and its camera calibration correction
         self.rig_correction = RigCorrection(rig.shape[0]).to(self.device) if rig is not None else None
+        self.pose_correction = (ImagePoseCorrection.like(state_dict, "pose_correction.").to(self.device)
+                                if "pose_correction.rotation" in state_dict else None)  # and its per-image poses
         self.scene_model.decoder_like(state_dict, prefix="scene_model.")
         out = super().load_state_dict(state_dict, strict=strict, **kwargs)
         if rebuilt:
@@ -396,9 +407,11 @@ class IDSplatModel(Model):
         viewmat, K, width, height = self._camera_inputs(camera, downscale)
         meta = camera.metadata or {}
         sensor = int(meta["sensor_idx"].reshape(-1)[0]) if "sensor_idx" in meta else 0
+        time = self._render_time(camera)
         if self.rig_correction is not None and "sensor_idx" in meta:  # recorded cameras only
             viewmat = self.rig_correction(viewmat, sensor)
-        time = self._render_time(camera)
+        if self.pose_correction is not None and "sensor_idx" in meta:
+            viewmat = self.pose_correction(viewmat, sensor, time)
         shutter = self.shutters.at(sensor, time) if self.shutters is not None else None
         # Instances hidden in the viewer's panel are left out of the viewer's renders only.
         outputs = render_camera_hiding(self.scene_model, self.viewer_controls.hidden_now(),
@@ -460,6 +473,9 @@ class IDSplatModel(Model):
         if self.rig_correction is not None and self.training:
             weight, degrees, metres = self.config.camera_refinement_prior
             losses["camera_refinement_prior"] = weight * self.rig_correction.prior(degrees, metres)
+        if self.pose_correction is not None and self.training:
+            weight, degrees, metres = self.config.pose_refinement_prior
+            losses["pose_refinement_prior"] = weight * self.pose_correction.prior(degrees, metres)
         return losses
 
     def get_image_metrics_and_images(self, outputs, batch) -> Tuple[Dict[str, float], Dict[str, Tensor]]:
@@ -484,6 +500,15 @@ class IDSplatModel(Model):
             ids = outputs["instance_id"][..., 0].long()
             images["instances"] = instance_colors(ids)
         return metrics, images
+
+    def camera_corrections(self) -> Dict[str, Dict[str, float]]:
+        """Per camera, the learned pose corrections (ns-eval's JSON): its calibration's (degrees,
+        metres) and the median over its training images of their own; empty when neither is on."""
+        out: Dict[str, Dict[str, float]] = {}
+        for name, corrections in [("calibration", self.rig_correction), ("image_pose_median", self.pose_correction)]:
+            for camera, (deg, metres) in zip(self.camera_names, corrections.summary() if corrections else []):
+                out.setdefault(camera, {}).update({f"{name}_deg": deg, f"{name}_m": metres})
+        return out
 
     def object_pixel_errors(self, outputs, batch) -> Dict[str, Tuple[float, int]]:
         """Per annotated moving road user of an evaluation image: (squared error sum, pixels)."""

@@ -53,6 +53,12 @@ def _parser() -> argparse.ArgumentParser:
              "axis, degrees, in every frame, while rendering it from the true pose (default 0 0: a perfect rig)",
     )
     p.add_argument(
+        "--pose-noise", type=float, nargs=2, default=(0.0, 0.0), metavar=("DEGREES", "METRES"),
+        help="write every camera pose of a frame with one ego-pose error that wanders smoothly over the drive, up "
+             "to DEGREES about and METRES along each ego axis, while rendering from the true poses; the lidar's "
+             "poses stay exact (default 0 0: exact poses)",
+    )
+    p.add_argument(
         "--traffic", choices=TRAFFIC_KINDS, default=None,
         help="moving vehicles: fixed (the same five manoeuvres on every seed), varied (0-15 drawn per seed) or "
              "hard (close passes, long vehicles, completed turns, cut-in, stop-and-go, U-turn); default: the "
@@ -67,10 +73,12 @@ _DIRECTION_CODES = {"top_to_bottom": "", "bottom_to_top": "bt", "left_to_right":
 
 def config_from_args(preset: str, pedestrians: int | None, cyclists: int | None, rolling_shutter_ms: float = 0.0,
                      rolling_shutter_direction: str = "top_to_bottom", traffic: str | None = None,
-                     exposure_drift: float = 0.0, calibration_error_deg: tuple = (0.0, 0.0)) -> SyntheticConfig:
-    """The preset, with the counts of people, the rolling shutter, the exposure drift and the traffic
-    replaced where given; a changed preset gets its own name (`small_p5c0`, `small_rs40`,
-    `small_rs40lr`, `small_ex0.3`, `bench_hard`), so that its folder does not collide with the preset's."""
+                     exposure_drift: float = 0.0, calibration_error_deg: tuple = (0.0, 0.0),
+                     pose_noise: tuple = (0.0, 0.0)) -> SyntheticConfig:
+    """The preset, with the counts of people, the rolling shutter, the rig's defects (exposure drift,
+    calibration error, pose noise) and the traffic replaced where given; a changed preset gets its own
+    name (`small_p5c0`, `small_rs40`, `small_rs40lr`, `small_ex0.3`, `small_cal1x0.5`,
+    `small_pn0.5x0.1`, `bench_hard`), so that its folder does not collide with the preset's."""
     config = get_preset(preset)
     if traffic is not None and traffic != config.traffic:
         config = dataclasses.replace(config, name=f"{config.name}_{traffic}", traffic=traffic)
@@ -92,6 +100,9 @@ def config_from_args(preset: str, pedestrians: int | None, cyclists: int | None,
     if any(calibration_error_deg):
         cameras = dataclasses.replace(cameras, calibration_error_deg=tuple(float(v) for v in calibration_error_deg))
         name = f"{name}_cal{calibration_error_deg[0]:g}x{calibration_error_deg[1]:g}"
+    if any(pose_noise):
+        cameras = dataclasses.replace(cameras, pose_noise=tuple(float(v) for v in pose_noise))
+        name = f"{name}_pn{pose_noise[0]:g}x{pose_noise[1]:g}"
     if name == config.name:
         return get_preset(config)
     return get_preset(dataclasses.replace(config, name=name, cameras=cameras, **counts))
@@ -101,7 +112,8 @@ def _main() -> None:
     args = _parser().parse_args()
     start = time.perf_counter()
     config = config_from_args(args.preset, args.pedestrians, args.cyclists, args.rolling_shutter_ms,
-                              args.rolling_shutter_direction, args.traffic, args.exposure_drift, args.calibration_error_deg)
+                              args.rolling_shutter_direction, args.traffic, args.exposure_drift, args.calibration_error_deg,
+                              args.pose_noise)
     path = generate_sequence(
         args.out, config, args.seed, overwrite=args.overwrite, workers=args.workers, progress=not args.quiet
     )

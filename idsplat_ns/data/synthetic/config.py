@@ -13,6 +13,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from idsplat_ns.errors import IDSplatError
 
@@ -70,6 +71,11 @@ class CameraRigConfig:
     """A miscalibrated camera, as real rigs have: the written pose of the front-left camera is turned
     by (about its vertical axis, about its horizontal axis) degrees in every frame, while its images
     are rendered from the true pose (0, 0: a perfect rig)."""
+    pose_noise: tuple[float, float] = (0.0, 0.0)
+    """Camera poses that carry a localisation error, as PandaSet's do: the written poses of all cameras
+    of a frame carry one error of the ego pose that wanders smoothly over the drive, up to (degrees
+    about, metres along) each ego axis, while the images come from the true poses and the lidar's
+    poses stay exact (0, 0: exact poses; see :func:`pose_noise`)."""
     side_cameras: bool = False
     """Also the two side cameras (``SIDE_CAMERA_NAMES``, yaws +/-110 deg): five cameras around the
     front half, as a Waymo rig has."""
@@ -184,6 +190,8 @@ MAX_PEDESTRIANS = 12
 MAX_CYCLISTS = 6
 """Most cyclists a street holds (the lanes also carry the vehicles)."""
 MAX_CALIBRATION_ERROR_DEG = 10.0
+MAX_POSE_NOISE = (5.0, 2.0)
+"""Largest pose noise the generator makes: degrees, metres."""
 """Largest calibration error a street is written with: a rig further off is mounted wrong, not miscalibrated."""
 
 
@@ -223,6 +231,9 @@ def check_config(config: SyntheticConfig) -> None:
     if not all(math.isfinite(v) and abs(v) <= MAX_CALIBRATION_ERROR_DEG for v in rig.calibration_error_deg):
         raise IDSplatError(f"calibration error {' '.join(f'{v:g}' for v in rig.calibration_error_deg)} degrees: choose "
                            f"values from -{MAX_CALIBRATION_ERROR_DEG:g} to {MAX_CALIBRATION_ERROR_DEG:g} (--calibration-error-deg)")
+    if not all(math.isfinite(v) and 0.0 <= v <= top for v, top in zip(rig.pose_noise, MAX_POSE_NOISE)):
+        raise IDSplatError(f"pose noise {' '.join(f'{v:g}' for v in rig.pose_noise)}: choose 0 to {MAX_POSE_NOISE[0]:g} "
+                           f"degrees and 0 to {MAX_POSE_NOISE[1]:g} metres (--pose-noise)")
     if config.traffic not in TRAFFIC_KINDS:
         raise IDSplatError(f"traffic={config.traffic!r}: choose one of {', '.join(TRAFFIC_KINDS)} (--traffic)")
 
@@ -241,6 +252,8 @@ def config_to_dict(config: SyntheticConfig) -> dict:
         out["cameras"].pop("exposure_drift")
     if not any(config.cameras.calibration_error_deg):
         out["cameras"].pop("calibration_error_deg")
+    if not any(config.cameras.pose_noise):
+        out["cameras"].pop("pose_noise")
     if not config.cameras.side_cameras:
         out["cameras"].pop("side_cameras")
     return out
@@ -252,6 +265,22 @@ def exposure_gain(rig: CameraRigConfig, camera: int, time: float, duration: floa
     phase = 2.0 * np.pi * camera / len(camera_names(rig))
     return 1.0 + rig.exposure_drift * float(np.sin(2.0 * np.pi * time / max(duration, 1e-9) + phase))
 
+
+
+# Cycles over the drive and phases of the six components of the pose noise (rotation about, then
+# translation along, the ego's x, y, z): incommensurate, so that no two components move together.
+_POSE_NOISE_CYCLES = np.array([1.3, 1.9, 2.6, 1.6, 2.2, 2.9])
+_POSE_NOISE_PHASES = np.array([0.0, 1.1, 2.3, 3.7, 4.4, 5.2])
+
+
+def pose_noise(rig: CameraRigConfig, time: float, duration: float) -> tuple[np.ndarray, np.ndarray]:
+    """The ego-frame error ``(R [3, 3], t [3])`` that the cameras' written poses carry at ``time``
+    seconds of a ``duration``-second drive: a written camera-to-ego pose is ``(R, t)`` after the true
+    one. Each component is a sinusoid of its own frequency (1.3-2.9 cycles over the drive) and phase,
+    of amplitude ``rig.pose_noise`` (degrees for the rotation vector, metres for the translation)."""
+    s = np.sin(2.0 * np.pi * _POSE_NOISE_CYCLES * time / max(duration, 1e-9) + _POSE_NOISE_PHASES)
+    degrees, metres = rig.pose_noise
+    return Rotation.from_rotvec(np.radians(degrees) * s[:3]).as_matrix(), metres * s[3:]
 
 
 MISCALIBRATED_CAMERA = 1

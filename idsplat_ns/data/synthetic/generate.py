@@ -27,6 +27,7 @@ from idsplat_ns.data.synthetic.config import (
     camera_names,
     config_to_dict,
     exposure_gain,
+    pose_noise,
     get_preset,
 )
 from idsplat_ns.data.synthetic.lidar_sim import simulate_sweep
@@ -158,6 +159,11 @@ def _make_frame(k: int) -> dict:
         rot, pos = cam.pose(world, t_img)
         if c == MISCALIBRATED_CAMERA and any(cfg.cameras.calibration_error_deg):
             rot = rot @ calibration_error(cfg.cameras)  # written wrong, rendered right
+        if any(cfg.cameras.pose_noise):  # the ego's pose error, in the ego frame: written wrong too
+            ego_rot, ego_pos = (a[0] for a in world.ego_pose(np.array([t_img])))
+            noise_rot, noise_t = pose_noise(cfg.cameras, t_img, cfg.num_frames / cfg.frame_rate)
+            pos = ego_rot @ (noise_rot @ (ego_rot.T @ (pos - ego_pos)) + noise_t) + ego_pos
+            rot = ego_rot @ noise_rot @ ego_rot.T @ rot
         out["cameras"][cam.name] = (
             writer.pose_dict(world.local_to_world_rotation @ rot, world.points_to_world(pos[None])[0]),
             cfg.start_time + t_img,

@@ -1,0 +1,79 @@
+"""Parameters held per training image ("knots") and read at any time of the same camera.
+
+A per-image correction (colour, pose) is learned only where there is a training image. Any other
+time of that camera (its held-out frames, the viewer's slider) takes the value linearly interpolated
+between the camera's two nearest training images in time, clamped at the ends; a camera without
+training images has none. The interpolation is what makes held-out frames comparable without
+looking at them. Shared by :mod:`idsplat_ns.model.exposure` and
+:mod:`idsplat_ns.model.camera_refinement`.
+"""
+
+from __future__ import annotations
+
+from typing import Optional, Sequence
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+
+def interpolation_weights(knots: Tensor, time: float) -> tuple[int, int, float]:  # knots: [K] sorted, K >= 1
+    """``(i, j, w)``: the value at ``time`` is ``(1 - w) v[i] + w v[j]`` (clamped outside the knots)."""
+    k = int(knots.shape[0])
+    if k == 1:
+        return 0, 0, 0.0
+    j = int(torch.searchsorted(knots, torch.tensor([time], dtype=knots.dtype, device=knots.device), right=True)[0])
+    j = min(max(j, 1), k - 1)
+    t0, t1 = float(knots[j - 1]), float(knots[j])
+    w = min(max((time - t0) / (t1 - t0), 0.0), 1.0) if t1 > t0 else 0.0
+    return j - 1, j, w
+
+
+class CameraKnots(nn.Module):
+    """The knots' times, camera by camera; subclasses add one parameter row per knot."""
+
+    def __init__(self, knot_times: Sequence[np.ndarray]) -> None:
+        """``knot_times[c]``: the times [s] of camera ``c``'s training images (any order; repeats
+        are one knot)."""
+        super().__init__()
+        per_camera = [np.unique(np.asarray(t, dtype=np.float64)) for t in knot_times]
+        starts = np.concatenate([[0], np.cumsum([len(t) for t in per_camera])]).astype(np.int64)
+        times = np.concatenate(per_camera) if per_camera else np.zeros(0)
+        self.register_buffer("times", torch.from_numpy(times))  # [K] all cameras' knots, camera by camera
+        self.register_buffer("starts", torch.from_numpy(starts))  # [C + 1] camera c's knots: starts[c]:starts[c+1]
+
+    @classmethod
+    def like(cls, state_dict: dict, prefix: str):
+        """An instance of the checkpoint's shape (its knots), to load ``state_dict`` into."""
+        times, starts = state_dict[prefix + "times"], state_dict[prefix + "starts"]
+        return cls([times[int(starts[c]):int(starts[c + 1])].cpu().numpy() for c in range(len(starts) - 1)])
+
+    @classmethod
+    def for_images(cls, images, camera_names: Sequence[str]):
+        """Knots at the times of ``images`` (the training images: ``camera`` and ``time`` [s]),
+        one row per camera of ``camera_names``."""
+        times: list[list[float]] = [[] for _ in camera_names]
+        for im in images:
+            times[list(camera_names).index(im.camera)].append(float(im.time))
+        return cls([np.asarray(t) for t in times])
+
+    @property
+    def num_cameras(self) -> int:
+        return int(self.starts.shape[0]) - 1
+
+    @property
+    def num_knots(self) -> int:
+        return int(self.times.shape[0])
+
+    def value_at(self, values: Tensor, sensor: int, time: Optional[float]) -> Optional[Tensor]:  # values: [K, ...]
+        """``values`` (one row per knot) of camera ``sensor`` at ``time`` [s]; None where the camera
+        has no knots or there is no time."""
+        if time is None or not 0 <= sensor < self.num_cameras:
+            return None
+        s, e = int(self.starts[sensor]), int(self.starts[sensor + 1])
+        if e == s:
+            return None
+        i, j, w = interpolation_weights(self.times[s:e], float(time))
+        if w == 0.0:
+            return values[s + i]
+        return (1.0 - w) * values[s + i] + w * values[s + j]
