@@ -108,6 +108,8 @@ RULES = [
          "instances whose points agree across frames without motion are made static"),
     Rule("no-amodal", "smoothing", "amodal.enabled", False,
          "canonical origin moved to the middle of the whole vehicle (class size, sensor side)"),
+    Rule("no-contained-parts", "smoothing", "amodal.parts.enabled", False,
+         "instances whose points stay inside a long vehicle's completed box, moving with it, folded into it"),
     # Registration (a registration of its own per street).
     Rule("no-back-face", "registration", "registration.back_face_tolerance", None,
          "fitness inliers only on source surfaces facing the target's sensor"),

@@ -29,6 +29,7 @@ from typing import Optional
 
 import numpy as np
 
+from idsplat_ns.instances.contained_parts import BOXES_KEY, ContainedPartsConfig
 from idsplat_ns.instances.registration import frame_surface_normals
 from idsplat_ns.instances.tracks import InstanceTracks
 from idsplat_ns.ranges import Range, bounded
@@ -73,6 +74,9 @@ class AmodalCentreConfig:
     tall_size: tuple[float, float] = (16.5, 2.55)
     """(length, width) in metres of a long vehicle taller than ``tall_roof_height``: an articulated
     lorry (the EU's maximum length)."""
+    parts: ContainedPartsConfig = field(default_factory=ContainedPartsConfig)
+    """Instances inside a long vehicle's completed box, moving with it, folded into it
+    (:mod:`idsplat_ns.instances.contained_parts`)."""
 
 
 def _is_long_vehicle(label: str) -> bool:
@@ -214,7 +218,7 @@ def complete_centres(
     (the lidar ground, ``GroundSurface.heights_at``) serves ``ground_contact`` and ``tall_roof_height``."""
     if not config.enabled:
         return tracks
-    out, moved = [], {}
+    out, moved, boxes = [], {}, {}
     for inst in tracks.instances:
         size = typical_size(inst.label, config.class_sizes)
         measured = inst.measured_valid if inst.measured_valid is not None else inst.valid
@@ -235,5 +239,15 @@ def complete_centres(
                           ground if config.ground_contact else None)
         points, poses = shift_origin(inst.canonical_points, inst.poses, c)
         moved[int(inst.instance_id)] = [float(x) for x in c]
+        boxes[int(inst.instance_id)] = completed_box(points, forward, size, config.trim)
         out.append(replace(inst, canonical_points=points, poses=poses))
-    return replace(tracks, instances=out, metadata={**tracks.metadata, "amodal_centre_shift": moved})
+    return replace(tracks, instances=out, metadata={**tracks.metadata, "amodal_centre_shift": moved, BOXES_KEY: boxes})
+
+
+def completed_box(points: np.ndarray, forward: np.ndarray, size: tuple[float, float], trim: float) -> list[float]:
+    """[length, width, forward x, forward y] of the completed box about the canonical origin: the
+    typical ``size``, or the points' (trimmed) extent where they span more."""
+    f = np.array([forward[0], forward[1]]) / max(float(np.hypot(forward[0], forward[1])), 1e-12)
+    xy = points[:, :2]
+    spans = [float(np.subtract(*np.quantile(xy @ axis, [1.0 - trim, trim]))) for axis in (f, np.array([-f[1], f[0]]))]
+    return [max(size[0], spans[0]), max(size[1], spans[1]), float(f[0]), float(f[1])]

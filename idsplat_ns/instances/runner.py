@@ -15,6 +15,7 @@ from typing import Callable, Optional
 from idsplat_ns.data.scene import Scene
 from idsplat_ns.errors import IDSplatError
 from idsplat_ns.instances.amodal_centre import AmodalCentreConfig, complete_centres
+from idsplat_ns.instances.contained_parts import absorb_contained_parts
 from idsplat_ns.instances.cache import atomic_path, hash_json, remove_stale_temporaries, scene_fingerprint
 from idsplat_ns.instances.features.base import PointFeatures
 from idsplat_ns.instances.ground import GroundConfig, GroundSurface
@@ -259,8 +260,10 @@ def run_preprocessing(
         amodal = config.amodal
         on_ground = (amodal.ground_contact or amodal.tall_roof_height is not None) and scene.has_lidar
         tracks = complete_centres(tracks, scene.lidar_positions(), amodal, lidar_ground().heights_at if on_ground else None)
+        tracks = absorb_contained_parts(tracks, amodal.parts)
         timings.append(StageTiming("amodal centres", time.perf_counter() - t0, False,
-                                   f"{len(tracks.metadata.get('amodal_centre_shift', {}))} moved"))
+                                   f"{len(tracks.metadata.get('amodal_centre_shift', {}))} moved, "
+                                   f"{len(tracks.metadata.get('folded_parts', {}))} parts folded into long vehicles"))
     else:
         timings.append(StageTiming("amodal centres", 0.0, False, "skipped (disabled)"))
 
