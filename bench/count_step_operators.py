@@ -4,12 +4,13 @@ make the host wait for a CUDA device (scalar reads, ``nonzero``, ``unique``, boo
 indexing...), by source line. A dispatch hook sees every operator, the backward pass's too.
 
     .venv/bin/python -m bench.count_step_operators --method idsplat --preset tiny --seed 100 \\
-        --variant tile-torch:torch --out /tmp/ops
+        --variant tile-torch:torch --out /tmp/ops [--model-set exposure=True camera_refinement=True]
 """
 
 from __future__ import annotations
 
 import argparse
+import ast
 import collections
 import json
 import threading
@@ -75,11 +76,19 @@ def main() -> None:
                     help="camera rasterizer and lidar compositor, as bench.profile_train_step --variants")
     ap.add_argument("--start-step", type=int, default=100)
     ap.add_argument("--top", type=int, default=20, help="files listed")
+    ap.add_argument("--model-set", nargs="*", default=[], metavar="NAME=VALUE",
+                    help="model settings changed (exposure=True camera_refinement=True; VALUE a Python literal)")
     ap.add_argument("--out", type=Path, required=True)
     args = ap.parse_args()
+    settings = {}
+    for item in args.model_set:
+        name, sep, text = item.partition("=")
+        if not sep:
+            raise SystemExit(f"--model-set {item!r}: write NAME=VALUE")
+        settings[name] = ast.literal_eval(text)
     args.out.mkdir(parents=True, exist_ok=True)
     camera, _, lidar = args.variant.partition(":")
-    trainer = build_trainer(args.method, args.preset, args.seed, args.mode, args.out)
+    trainer = build_trainer(args.method, args.preset, args.seed, args.mode, args.out, settings)
     set_variant(trainer, camera, lidar or "torch")
     run_steps(trainer, args.start_step, 2)  # warm-up: lazy buffers, first-step branches
     census = OperatorCensus()

@@ -40,8 +40,9 @@ def _sync() -> None:
         torch.cuda.synchronize()
 
 
-def build_trainer(method: str, preset: str, seed: int, mode: str, out: Path):
-    """The trainer ``ns-train METHOD idsplat-builtin --preset P --seed S`` would run, set up."""
+def build_trainer(method: str, preset: str, seed: int, mode: str, out: Path, model_settings: dict | None = None):
+    """The trainer ``ns-train METHOD idsplat-builtin --preset P --seed S`` would run, set up, with
+    ``model_settings`` (``--pipeline.model.NAME VALUE``) changed."""
     from nerfstudio.scripts.train import _set_random_seed
 
     import method_configs.idsplat as methods
@@ -50,6 +51,10 @@ def build_trainer(method: str, preset: str, seed: int, mode: str, out: Path):
     cfg = getattr(methods, PRESETS[method]).config
     cfg.pipeline.datamanager.dataparser.data = builtin_street(preset, seed)
     cfg.pipeline.datamanager.instance_mode = mode
+    for name, value in (model_settings or {}).items():
+        if not hasattr(cfg.pipeline.model, name):
+            raise SystemExit(f"--model-set {name}: the model config has no such setting")
+        setattr(cfg.pipeline.model, name, value)
     cfg.vis = "tensorboard"
     cfg.output_dir = out / "run"
     cfg.experiment_name = "profile"

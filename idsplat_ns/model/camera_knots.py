@@ -17,12 +17,13 @@ import torch
 from torch import Tensor, nn
 
 
-def interpolation_weights(knots: Tensor, time: float) -> tuple[int, int, float]:  # knots: [K] sorted, K >= 1
+def interpolation_weights(knots: np.ndarray | Tensor, time: float) -> tuple[int, int, float]:  # knots: [K] sorted, K >= 1
     """``(i, j, w)``: the value at ``time`` is ``(1 - w) v[i] + w v[j]`` (clamped outside the knots)."""
+    knots = knots.detach().cpu().numpy() if isinstance(knots, Tensor) else np.asarray(knots)
     k = int(knots.shape[0])
     if k == 1:
         return 0, 0, 0.0
-    j = int(torch.searchsorted(knots, torch.tensor([time], dtype=knots.dtype, device=knots.device), right=True)[0])
+    j = int(np.searchsorted(knots, time, side="right"))
     j = min(max(j, 1), k - 1)
     t0, t1 = float(knots[j - 1]), float(knots[j])
     w = min(max((time - t0) / (t1 - t0), 0.0), 1.0) if t1 > t0 else 0.0
@@ -41,6 +42,8 @@ class CameraKnots(nn.Module):
         times = np.concatenate(per_camera) if per_camera else np.zeros(0)
         self.register_buffer("times", torch.from_numpy(times))  # [K] all cameras' knots, camera by camera
         self.register_buffer("starts", torch.from_numpy(starts))  # [C + 1] camera c's knots: starts[c]:starts[c+1]
+        # Host copies: where a render falls between the knots is decided without reading the device.
+        self._host_times, self._host_starts = times, starts
 
     @classmethod
     def like(cls, state_dict: dict, prefix: str):
@@ -59,21 +62,21 @@ class CameraKnots(nn.Module):
 
     @property
     def num_cameras(self) -> int:
-        return int(self.starts.shape[0]) - 1
+        return len(self._host_starts) - 1
 
     @property
     def num_knots(self) -> int:
-        return int(self.times.shape[0])
+        return len(self._host_times)
 
     def value_at(self, values: Tensor, sensor: int, time: Optional[float]) -> Optional[Tensor]:  # values: [K, ...]
         """``values`` (one row per knot) of camera ``sensor`` at ``time`` [s]; None where the camera
         has no knots or there is no time."""
         if time is None or not 0 <= sensor < self.num_cameras:
             return None
-        s, e = int(self.starts[sensor]), int(self.starts[sensor + 1])
+        s, e = int(self._host_starts[sensor]), int(self._host_starts[sensor + 1])
         if e == s:
             return None
-        i, j, w = interpolation_weights(self.times[s:e], float(time))
+        i, j, w = interpolation_weights(self._host_times[s:e], float(time))
         if w == 0.0:
             return values[s + i]
         return (1.0 - w) * values[s + i] + w * values[s + j]
