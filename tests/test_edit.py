@@ -16,6 +16,7 @@ from _tiny_run import loaded_pipeline, tiny_run  # noqa: E402
 
 from idsplat_ns.data.tracks import label_group  # noqa: E402
 from idsplat_ns.model.editing import EditError, SceneTensors  # noqa: E402
+from idsplat_ns.nerfstudio.camera_read import read_camera  # noqa: E402
 from idsplat_ns.nerfstudio.model_inputs import instance_inputs
 
 PREFIX = "_model.scene_model."
@@ -103,7 +104,7 @@ def _centroid(mask: torch.Tensor) -> np.ndarray:
 
 def _project(pipeline, i: int, point: np.ndarray) -> np.ndarray:
     cam = pipeline.datamanager.eval_dataset.cameras[i : i + 1]
-    viewmat, K, _, _ = pipeline.model._camera_inputs(cam, 1)
+    viewmat, K, _, _ = pipeline.model._camera_inputs(read_camera(cam), 1)
     p = viewmat[:3, :3].double() @ torch.as_tensor(point) + viewmat[:3, 3].double()
     uv = K.double() @ p
     return (uv[:2] / uv[2]).numpy()
@@ -121,7 +122,7 @@ def test_move_one_metre_shifts_the_mask_by_the_projected_offset(pipeline):
     g = pipeline.model.gaussians
     centre = (R[k].double() @ g.means[g.instance_ids == iid].detach().double().mean(0) + trans[k].double()).numpy()
     # One metre along the camera's horizontal right axis (world frame), so the mask moves sideways.
-    right = pipeline.model._camera_inputs(cam, 1)[0][0, :3].double().numpy()
+    right = pipeline.model._camera_inputs(read_camera(cam), 1)[0][0, :3].double().numpy()
     right[2] = 0.0
     offset = right / np.linalg.norm(right)
     expected = _project(pipeline, i, centre + offset) - _project(pipeline, i, centre)

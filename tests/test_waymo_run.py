@@ -58,10 +58,12 @@ def test_a_waymo_run_loads_evaluates_and_renders(waymo_run, capsys):
     assert metrics["num_images"] >= 2 and 0.0 < metrics["psnr"] < 60.0
     assert metrics["lidar_num_sweeps"] >= 1 and "lidar_raydrop_acc" in metrics  # Waymo has drop labels
 
+    from idsplat_ns.nerfstudio.camera_read import read_camera
+
     camera = pipeline.datamanager.eval_dataset.cameras[0:1].to(model.device)
     # The recorded cameras render with their rolling shutter (Waymo's are rolling-shutter).
     assert model.shutters.has_rolling_shutter
-    assert model.shutters.at(int(camera.metadata["sensor_idx"].reshape(-1)[0]), model._render_time(camera)) is not None
+    assert model.shutters.at(int(camera.metadata["sensor_idx"].reshape(-1)[0]), model._render_time(read_camera(camera))) is not None
     with torch.no_grad():
         out = model.get_outputs_for_camera(camera)
         assert out["rgb"].shape == (int(camera.height), int(camera.width), 3) and torch.isfinite(out["rgb"]).all()

@@ -47,6 +47,7 @@ from idsplat_ns.model.schedules import resolution_downscale
 from idsplat_ns.model.trajectories import InstanceTrajectories
 from idsplat_ns.nerfstudio.dataparser import OPENCV_TO_OPENGL
 from idsplat_ns.nerfstudio.model_inputs import instance_inputs, split_data
+from idsplat_ns.nerfstudio.camera_read import HostCamera, read_camera
 from idsplat_ns.nerfstudio.render_guard import check_render_tools
 from idsplat_ns.nerfstudio.viewer_controls import InstanceControls, in_viewer_render
 from idsplat_ns.nerfstudio.viewer_scene import start_view
@@ -367,50 +368,44 @@ class IDSplatModel(Model):
         sm.deformation = InstanceDeformation.placeholder(D, F, C, hidden, freqs).to(self.device)
 
     # --- rendering ----------------------------------------------------------------------------
-    def _camera_inputs(self, camera: Cameras, downscale: int) -> tuple[Tensor, Tensor, int, int]:
-        c2w = camera.camera_to_worlds[0].to(self.device)  # [3, 4] OpenGL axes
+    def _camera_inputs(self, host: HostCamera, downscale: int) -> tuple[Tensor, Tensor, int, int]:
+        c2w = host.camera_to_world  # [3, 4] OpenGL axes, on the host
         R = c2w[:3, :3] @ torch.as_tensor(OPENCV_TO_OPENGL[:3, :3]).to(c2w)  # the flip is its own inverse
-        viewmat = torch.eye(4, device=self.device)
+        viewmat = torch.eye(4, dtype=c2w.dtype)
         viewmat[:3, :3] = R.T
         viewmat[:3, 3] = -R.T @ c2w[:3, 3]
-        width, height = int(camera.width[0, 0]) // downscale, int(camera.height[0, 0]) // downscale
-        sx, sy = width / float(camera.width[0, 0]), height / float(camera.height[0, 0])
-        K = torch.tensor(
-            [[float(camera.fx[0, 0]) * sx, 0.0, float(camera.cx[0, 0]) * sx],
-             [0.0, float(camera.fy[0, 0]) * sy, float(camera.cy[0, 0]) * sy],
-             [0.0, 0.0, 1.0]],
-            device=self.device,
-        )
-        return viewmat, K, width, height
+        width, height = host.width // downscale, host.height // downscale
+        sx, sy = width / host.width, height / host.height
+        K = torch.tensor([[host.fx * sx, 0.0, host.cx * sx], [0.0, host.fy * sy, host.cy * sy], [0.0, 0.0, 1.0]])
+        return viewmat.to(self.device), K.to(self.device), width, height
 
-    def _render_time(self, camera: Cameras) -> Optional[float]:
+    def _render_time(self, host: HostCamera) -> Optional[float]:
         """Seconds since the sequence start: the image's own time, else the viewer's [0, 1] slider,
         else (a camera path without times) the time of the nearest point of the recorded camera
         paths (:class:`PathClock`), said once. Static scenes need no time."""
-        meta = camera.metadata or {}
-        if "time_seconds" in meta:
-            return float(meta["time_seconds"].reshape(-1)[0])
-        if camera.times is not None:
-            return self.time_start + float(camera.times.reshape(-1)[0]) * self.time_span
+        if host.time_seconds is not None:
+            return host.time_seconds
+        if host.time_fraction is not None:
+            return self.time_start + host.time_fraction * self.time_span
         if not self.scene_model.has_instances:
             return None
         if not self._noted_missing_time:
             CONSOLE.print("note: the camera path has no times; each camera is rendered at the time the recorded "
                           "drive passed nearest to it (moving vehicles included)", soft_wrap=True)
             self._noted_missing_time = True
-        return self.path_clock.time_of(camera.camera_to_worlds[0, :3, 3].detach().cpu().double().numpy())
+        return self.path_clock.time_of(host.camera_to_world[:3, 3].double().numpy())
 
     def get_outputs(self, camera: Cameras) -> Dict[str, Tensor]:  # type: ignore[override]
         if not isinstance(camera, Cameras) or camera.shape[0] != 1:
             raise ValueError("IDSplatModel renders one Cameras object of one camera at a time")
         downscale = resolution_downscale(self.step, self.config.resolution_schedule) if self.training else 1
-        viewmat, K, width, height = self._camera_inputs(camera, downscale)
-        meta = camera.metadata or {}
-        sensor = int(meta["sensor_idx"].reshape(-1)[0]) if "sensor_idx" in meta else 0
-        time = self._render_time(camera)
-        if self.rig_correction is not None and "sensor_idx" in meta:  # recorded cameras only
+        host = read_camera(camera)  # one device read for the size, intrinsics, sensor and time
+        viewmat, K, width, height = self._camera_inputs(host, downscale)
+        sensor = host.sensor if host.sensor is not None else 0
+        time = self._render_time(host)
+        if self.rig_correction is not None and host.sensor is not None:  # recorded cameras only
             viewmat = self.rig_correction(viewmat, sensor)
-        if self.pose_correction is not None and "sensor_idx" in meta:
+        if self.pose_correction is not None and host.sensor is not None:
             viewmat = self.pose_correction(viewmat, sensor, time)
         shutter = self.shutters.at(sensor, time) if self.shutters is not None else None
         # Instances hidden in the viewer's panel are left out of the viewer's renders only.
@@ -440,7 +435,7 @@ class IDSplatModel(Model):
         if self.scene_model.has_instances:
             outputs["instances"] = instance_colors(outputs["instance_id"][..., 0])
         if in_viewer_render():
-            outputs = self.viewer_controls.after_render(outputs, self._render_time(camera))
+            outputs = self.viewer_controls.after_render(outputs, self._render_time(read_camera(camera)))
         return outputs
 
     # --- losses and metrics -------------------------------------------------------------------
