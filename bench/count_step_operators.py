@@ -1,7 +1,9 @@
 """Operators a training step runs, counted on any device: each one costs a launch from Python on
 a GPU, so their number bounds a step whose GPU is faster than its host. Also the operators that
 make the host wait for a CUDA device (scalar reads, ``nonzero``, ``unique``, boolean-mask
-indexing...), by source line. A dispatch hook sees every operator, the backward pass's too.
+indexing...), by source line. A dispatch hook sees every operator, the backward pass's too. On
+the CPU every tensor is a host tensor, so reads of what stays on the host on CUDA too (the lidar
+batch's CPU copies of its ray times, Adam's step counters) are counted as well.
 
     .venv/bin/python -m bench.count_step_operators --method idsplat --preset tiny --seed 100 \\
         --variant tile-torch:torch --out /tmp/ops [--model-set exposure=True camera_refinement=True]

@@ -81,11 +81,14 @@ def lidar_losses(
     returned = rays.returned
     sq_err = (render.range_unnormalised[:, 0] - rays.ranges) ** 2
     kept = returned
-    if cfg.depth_quantile < 1.0 and bool(returned.any()):
-        threshold = torch.quantile(sq_err.detach()[returned], cfg.depth_quantile)
+    if cfg.depth_quantile < 1.0:
+        # The quantile of the returned rays' errors with no read of the device: the others are NaN
+        # (all NaN without a returned ray, and then no ray is kept either way).
+        err = sq_err.detach()
+        threshold = torch.nanquantile(torch.where(returned, err, torch.full_like(err, float("nan"))), cfg.depth_quantile)
         # "< threshold" as SplatAD, but never drop every ray (all errors equal, e.g. all zero).
-        below = sq_err.detach() < threshold
-        kept = returned & (below if bool((returned & below).any()) else torch.ones_like(below))
+        below = err < threshold
+        kept = returned & torch.where((returned & below).any(), below, torch.ones_like(below))
     depth = _masked_mean(sq_err, kept)
     intensity = _masked_mean((head_out.intensity - rays.intensities) ** 2, kept)
     drop = F.binary_cross_entropy_with_logits(head_out.ray_drop_logit, (~returned).to(head_out.ray_drop_logit.dtype))

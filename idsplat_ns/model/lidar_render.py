@@ -57,6 +57,11 @@ class LidarRayBatch:
     times: Tensor  # [R] float64 seconds since the sequence start
     returned: Tensor  # [R] bool, False for rays that returned nothing
     sensor_ids: Optional[Tensor] = None  # [R] int64 which lidar fired each ray (None: one lidar)
+    # CPU copies of ``times`` and ``sensor_ids`` (``sample_rays`` keeps them): the rays' groups are
+    # made from them without reading the device. A batch whose times or lidars are replaced must
+    # replace or drop these too.
+    host_times: Optional[Tensor] = None  # [R] float64
+    host_sensor_ids: Optional[Tensor] = None  # [R] int64
 
     @property
     def num_rays(self) -> int:
@@ -64,7 +69,8 @@ class LidarRayBatch:
 
     def to(self, device: torch.device | str) -> LidarRayBatch:
         moved = [getattr(self, f).to(device) for f in ("origins", "directions", "ranges", "intensities", "times", "returned")]
-        return LidarRayBatch(*moved, sensor_ids=None if self.sensor_ids is None else self.sensor_ids.to(device))
+        return LidarRayBatch(*moved, sensor_ids=None if self.sensor_ids is None else self.sensor_ids.to(device),
+                             host_times=self.host_times, host_sensor_ids=self.host_sensor_ids)
 
 
 def sample_rays(
@@ -86,6 +92,8 @@ def sample_rays(
         idx = np.arange(n)
     else:
         idx = torch.randperm(n, generator=generator)[:num_rays].sort().values.numpy()
+    host_times = torch.as_tensor(sweep.times[idx], dtype=torch.float64)
+    host_sensor_ids = torch.as_tensor(sweep.sensor_ids[idx].astype(np.int64))
     return LidarRayBatch(
         origins=torch.as_tensor(sweep.origins[idx], dtype=torch.float32, device=device),
         directions=torch.as_tensor(
@@ -95,9 +103,11 @@ def sample_rays(
         intensities=torch.as_tensor(
             sweep.intensities[idx], dtype=torch.float32, device=device
         ),
-        times=torch.as_tensor(sweep.times[idx], dtype=torch.float64, device=device),
+        times=host_times.to(device),
         returned=torch.as_tensor(sweep.returned[idx], dtype=torch.bool, device=device),
-        sensor_ids=torch.as_tensor(sweep.sensor_ids[idx].astype(np.int64), device=device),
+        sensor_ids=host_sensor_ids.to(device),
+        host_times=host_times,
+        host_sensor_ids=host_sensor_ids,
     )
 
 
@@ -167,18 +177,25 @@ def _ray_groups(rays: LidarRayBatch, sensor_to_world: Tensor, num_time_bins: int
     if rays.num_rays == 0:
         raise IDSplatError("render_lidar_rays: the ray batch is empty; sample at least one ray")
     device = rays.origins.device
-    bins, centres = time_bins(rays.times, num_time_bins)
+    # The grouping from the host copies where the batch has them (no device read), else on its device.
+    host = rays.host_times is not None and len(rays.host_times) == rays.num_rays and (
+        rays.sensor_ids is None or (rays.host_sensor_ids is not None and len(rays.host_sensor_ids) == rays.num_rays))
+    times = rays.host_times if host else rays.times
+    sensor_ids = None if rays.sensor_ids is None else (rays.host_sensor_ids if host else rays.sensor_ids)
+    bins, centres = time_bins(times, num_time_bins)
     # One group per (lidar, time bin): each lidar is cast from its own position.
-    if rays.sensor_ids is not None:
-        _, sensor_rank = torch.unique(rays.sensor_ids.to(device), return_inverse=True)
-        groups = sensor_rank * centres.numel() + bins.to(device)
+    if sensor_ids is not None:
+        _, sensor_rank = torch.unique(sensor_ids.to(bins.device), return_inverse=True)
+        groups = sensor_rank * centres.numel() + bins
     else:
-        groups = bins.to(device)
+        groups = bins
     group_ids, ray_group = torch.unique(groups, return_inverse=True)  # ray_group: [R] in 0..G-1
     num_groups = group_ids.numel()
+    counts = torch.bincount(ray_group, minlength=num_groups)
+    group_ids, ray_group = group_ids.to(device), ray_group.to(device)
+    counts = counts.to(device=device, dtype=rays.origins.dtype)
     rot = sensor_to_world[:3, :3].to(device=device, dtype=torch.float32)
     # Each group's position: the mean origin of its rays.
-    counts = torch.bincount(ray_group, minlength=num_groups).to(rays.origins.dtype)
     origins = torch.zeros(num_groups, 3, device=device, dtype=rays.origins.dtype).index_add_(0, ray_group, rays.origins)
     origins = origins / counts[:, None]
     lidar_from_world = torch.eye(4, device=device, dtype=torch.float32)
