@@ -121,14 +121,18 @@ class IDSplatModelConfig(ModelConfig):
     """View-dependent colour: the RGB decoder also takes each pixel's world-frame ray direction, as
     in SplatAD, whose decoder the paper adopts (False: the ablation; a checkpoint keeps the choice
     it was trained with)."""
-    exposure: bool = False
+    exposure: bool = True
     """Per-image affine colour (exposure drifting over a drive), learned at each training image and
-    interpolated in time for its camera's other frames (:mod:`idsplat_ns.model.exposure`)."""
+    interpolated in time for its camera's other frames (:mod:`idsplat_ns.model.exposure`; not in the
+    paper). On: on unseen streets it changes held-out PSNR by under 0.1 dB where nothing drifts and
+    regains most of what a drift of gains 0.7-1.3 costs (docs/model.md). False: the paper's model."""
     exposure_prior: float = 0.1
     """Weight of the prior that keeps each image's colour transform near identity."""
-    camera_refinement: bool = False
+    camera_refinement: bool = True
     """Refine each camera's calibration: a rotation and translation per camera, in its own frame,
-    for all its images (:mod:`idsplat_ns.model.camera_refinement`)."""
+    for all its images (:mod:`idsplat_ns.model.camera_refinement`; not in the paper). On: on unseen
+    streets it changes held-out PSNR by under 0.1 dB on a perfect rig and regains most of what a
+    camera turned by a degree costs (docs/model.md). False: the paper's model."""
     camera_refinement_prior: Tuple[float, float, float] = bounded((1e-3, 1.0, 0.05), POSITIVE)
     """Weight of the calibration prior, and the correction it expects: degrees, metres."""
     pose_refinement: bool = False
