@@ -68,3 +68,23 @@ def test_lpips_missing_backbone_is_one_line(tmp_path):
 
     with pytest.raises(IDSplatError, match="LPIPS backbone weights not found"):
         LPIPS.from_files(tmp_path / "nope.pth")
+
+
+def test_colour_aligned_is_the_least_squares_affine_map_numpys_lstsq_finds() -> None:
+    """Against numpy's least squares (an independent solver), a render that is an affine colour
+    map of the image is mapped back onto it, and a flat render stays finite."""
+    import numpy as np
+
+    from idsplat_ns.eval.image_metrics import colour_aligned, psnr
+
+    g = torch.Generator().manual_seed(0)
+    gt = torch.rand(24, 32, 3, generator=g)
+    pred = (torch.rand(24, 32, 3, generator=g) * 0.5 + gt * 0.5).clamp(0, 1)
+    X = np.concatenate([pred.reshape(-1, 3).double().numpy(), np.ones((24 * 32, 1))], axis=1)
+    coefficients, *_ = np.linalg.lstsq(X, gt.reshape(-1, 3).double().numpy(), rcond=None)
+    expected = np.clip(X @ coefficients, 0, 1).reshape(24, 32, 3)
+    assert np.allclose(colour_aligned(pred, gt).double().numpy(), expected, atol=1e-5)
+    drifted = gt * torch.tensor([0.7, 0.8, 1.1]) * 0.8 + 0.05  # a gain and an offset per channel
+    assert float(psnr(drifted.clamp(0, 1), gt)) < 25 and float(psnr(colour_aligned(drifted, gt), gt)) > 60
+    flat = torch.full((8, 8, 3), 0.5)
+    assert torch.isfinite(colour_aligned(flat, gt[:8, :8])).all()

@@ -1,4 +1,6 @@
-"""Image metrics: PSNR, SSIM and DPSNR (PSNR inside dynamic-object masks, per class).
+"""Image metrics: PSNR, SSIM, DPSNR (PSNR inside dynamic-object masks, per class) and the
+colour-aligned PSNR that some papers report (after the affine colour map that best fits the render
+to the image).
 
 SSIM is torchmetrics' (Wang et al., 11x11 Gaussian window, sigma 1.5, reflection padding, averaged
 over the whole image), the implementation nerfstudio's evaluation uses, so the numbers compare; it
@@ -48,6 +50,19 @@ def psnr(pred: Tensor, gt: Tensor, mask: Optional[Tensor] = None) -> Tensor:
         m = m.expand_as(err)
         mse = (err * m).sum() / m.sum().clamp(min=1)
     return -10 * torch.log10(mse.clamp(min=1e-10))
+
+
+def colour_aligned(pred: Tensor, gt: Tensor, ridge: float = 1e-6) -> Tensor:  # pred, gt: [H, W, 3] -> [H, W, 3]
+    """``pred`` through the affine colour map ``x -> x M + c`` (12 numbers) that fits it best to
+    ``gt`` in least squares, clamped to [0, 1]: what a per-image colour correction fitted to the
+    image being scored would give. The normal equations in float64 with a small ridge, so that a
+    flat image (a rank-deficient fit) stays finite on every device."""
+    x = pred.reshape(-1, pred.shape[-1]).to(torch.float64)
+    X = torch.cat([x, torch.ones_like(x[:, :1])], dim=1)  # [N, 4]
+    y = gt.reshape(-1, gt.shape[-1]).to(torch.float64)
+    A = X.T @ X + ridge * torch.eye(X.shape[1], dtype=X.dtype, device=X.device)
+    coefficients = torch.linalg.solve(A, X.T @ y)  # [4, 3]
+    return (X @ coefficients).clamp(0.0, 1.0).reshape(pred.shape).to(pred.dtype)
 
 
 def dynamic_psnrs(pred: Tensor, gt: Tensor, masks: dict[str, Tensor]) -> dict[str, float]:
