@@ -17,9 +17,8 @@ import torch
 from torch import Tensor, nn
 
 
-def interpolation_weights(knots: np.ndarray | Tensor, time: float) -> tuple[int, int, float]:  # knots: [K] sorted, K >= 1
+def interpolation_weights(knots: np.ndarray, time: float) -> tuple[int, int, float]:  # knots: [K] sorted, K >= 1
     """``(i, j, w)``: the value at ``time`` is ``(1 - w) v[i] + w v[j]`` (clamped outside the knots)."""
-    knots = knots.detach().cpu().numpy() if isinstance(knots, Tensor) else np.asarray(knots)
     k = int(knots.shape[0])
     if k == 1:
         return 0, 0, 0.0

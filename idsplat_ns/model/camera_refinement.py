@@ -37,6 +37,13 @@ def rigid_correction(rotation: Tensor, translation: Tensor) -> Tensor:  # [3] ax
     return torch.cat([top, bottom], dim=0)
 
 
+def correction_sizes(rotation: Tensor, translation: Tensor) -> tuple[np.ndarray, np.ndarray]:  # [N, 3], [N, 3]
+    """Per row: the rotation's angle in degrees [N] and the translation's length in metres [N]."""
+    with torch.no_grad():
+        return (torch.rad2deg(rotation.norm(dim=-1)).cpu().numpy().astype(np.float64),
+                translation.norm(dim=-1).cpu().numpy().astype(np.float64))
+
+
 def prior_in_units(rotation: Tensor, translation: Tensor, rotation_sigma_deg: float,
                    translation_sigma_m: float) -> Tensor:  # rotation, translation: [N, 3]
     """Mean over rows of the squared corrections in units of their expected size (0 for no rows)."""
@@ -76,10 +83,8 @@ class RigCorrection(nn.Module):
 
     def summary(self) -> list[tuple[float, float]]:
         """Per camera: (rotation in degrees, translation in metres) of its correction."""
-        with torch.no_grad():
-            deg = torch.rad2deg(self.rotation.norm(dim=-1)).tolist()
-            metres = self.translation.norm(dim=-1).tolist()
-        return list(zip(deg, metres))
+        deg, metres = correction_sizes(self.rotation, self.translation)
+        return list(zip(deg.tolist(), metres.tolist()))
 
 
 class ImagePoseCorrection(CameraKnots):
@@ -110,9 +115,7 @@ class ImagePoseCorrection(CameraKnots):
     def summary(self) -> list[tuple[float, float]]:
         """Per camera: the median over its training images of (rotation in degrees, translation in
         metres) of their corrections (0, 0 for a camera without training images)."""
-        with torch.no_grad():
-            deg = torch.rad2deg(self.rotation.norm(dim=-1)).cpu().numpy()
-            metres = self.translation.norm(dim=-1).cpu().numpy()
-        bounds = self.starts.tolist()
+        deg, metres = correction_sizes(self.rotation, self.translation)
+        bounds = self._host_starts.tolist()
         return [(float(np.median(deg[s:e])), float(np.median(metres[s:e]))) if e > s else (0.0, 0.0)
                 for s, e in zip(bounds[:-1], bounds[1:])]

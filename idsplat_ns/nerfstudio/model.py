@@ -399,14 +399,23 @@ class IDSplatModel(Model):
             self._noted_missing_time = True
         return self.path_clock.time_of(host.camera_to_world[:3, 3].double().numpy())
 
-    def get_outputs(self, camera: Cameras) -> Dict[str, Tensor]:  # type: ignore[override]
+    @staticmethod
+    def _read_one_camera(camera: Cameras) -> HostCamera:
+        """The render inputs of a ``Cameras`` of one camera, in one device read (size, intrinsics,
+        sensor and time)."""
         if not isinstance(camera, Cameras) or camera.shape[0] != 1:
             raise ValueError("IDSplatModel renders one Cameras object of one camera at a time")
+        return read_camera(camera)
+
+    def get_outputs(self, camera: Cameras) -> Dict[str, Tensor]:  # type: ignore[override]
+        host = self._read_one_camera(camera)
+        return self._render(host, self._render_time(host))
+
+    def _render(self, host: HostCamera, time: Optional[float]) -> Dict[str, Tensor]:
+        """The outputs of one camera at ``time`` (and, in a lidar training step, of a lidar batch)."""
         downscale = resolution_downscale(self.step, self.config.resolution_schedule) if self.training else 1
-        host = read_camera(camera)  # one device read for the size, intrinsics, sensor and time
         viewmat, K, width, height = self._camera_inputs(host, downscale)
         sensor = host.sensor if host.sensor is not None else 0
-        time = self._render_time(host)
         if self.rig_correction is not None and host.sensor is not None:  # recorded cameras only
             viewmat = self.rig_correction(viewmat, sensor)
         if self.pose_correction is not None and host.sensor is not None:
@@ -434,12 +443,13 @@ class IDSplatModel(Model):
         when the model has instances; viewer renders also get the panel's highlight. Only images
         [H, W, C]: ``ns-render dataset`` and the viewer write every output as one (the background
         colour [3] stays in the training outputs)."""
-        camera = camera.to(self.device)
-        outputs = {k: v for k, v in self.get_outputs(camera).items() if v.dim() == 3}
+        host = self._read_one_camera(camera)  # read once: the render and the viewer's panel share the time
+        time = self._render_time(host)
+        outputs = {k: v for k, v in self._render(host, time).items() if v.dim() == 3}
         if self.scene_model.has_instances:
             outputs["instances"] = instance_colors(outputs["instance_id"][..., 0])
         if in_viewer_render():
-            outputs = self.viewer_controls.after_render(outputs, self._render_time(read_camera(camera)))
+            outputs = self.viewer_controls.after_render(outputs, time)
         return outputs
 
     # --- losses and metrics -------------------------------------------------------------------

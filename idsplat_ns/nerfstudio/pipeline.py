@@ -161,8 +161,9 @@ class IDSplatPipeline(VanillaPipeline):
             tracks = inputs.tracks
             if tracks is not None and tracks.metadata.get("mask_source"):
                 result["mask_source"] = tracks.metadata["mask_source"]
-            if self.model.camera_corrections():  # what the calibration and pose refinement learned
-                result["camera_corrections"] = self.model.camera_corrections()
+            corrections = self.model.camera_corrections()  # what the calibration and pose refinement learned
+            if corrections:
+                result["camera_corrections"] = corrections
         if step is None:  # notes only in ns-eval's JSON: the trainer logs metrics as scalars
             notes = {"lpips_note": LPIPS_NOTE if "lpips" not in result else None, "lidar_raydrop_note": lidar_note}
             for key, note in notes.items():
