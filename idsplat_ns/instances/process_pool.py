@@ -70,9 +70,12 @@ def map_instances(fn: Callable[[Shared, Item], Result], shared: Shared, items: S
     try:
         if workers <= 1:
             out = []
-            for item in items:
-                out.append(fn(shared, item))
-                bar.update()
+            # The workers' thread limit here too: a multi-threaded BLAS sums in another order, and
+            # the results must not depend on the number of processes.
+            with threadpool_limits(1):
+                for item in items:
+                    out.append(fn(shared, item))
+                    bar.update()
             return out
         order = sorted(range(len(items)), key=lambda k: -sizes[k])
         results: list = [None] * len(items)
