@@ -51,6 +51,7 @@ class OperatorCensus(TorchDispatchMode):
     def __init__(self) -> None:
         super().__init__()
         self.by_file: collections.Counter = collections.Counter()
+        self.by_line: collections.Counter = collections.Counter()
         self.host_reads: collections.Counter = collections.Counter()
         self.backward = 0
 
@@ -59,6 +60,7 @@ class OperatorCensus(TorchDispatchMode):
         stack = traceback.extract_stack()
         site = _site(stack)
         self.by_file[site.rsplit(":", 1)[0]] += 1
+        self.by_line[site] += 1
         if threading.current_thread() is not threading.main_thread() or any("backward" in (f.line or "") for f in stack[-8:]):
             self.backward += 1
         masked = name in _MASKABLE and any(isinstance(i, torch.Tensor) and i.dtype == torch.bool
@@ -78,6 +80,7 @@ def main() -> None:
                     help="camera rasterizer and lidar compositor, as bench.profile_train_step --variants")
     ap.add_argument("--start-step", type=int, default=100)
     ap.add_argument("--top", type=int, default=20, help="files listed")
+    ap.add_argument("--lines", type=int, default=0, help="source lines listed, most operators first")
     ap.add_argument("--model-set", nargs="*", default=[], metavar="NAME=VALUE",
                     help="model settings changed (exposure=True camera_refinement=True; VALUE a Python literal)")
     ap.add_argument("--out", type=Path, required=True)
@@ -100,11 +103,14 @@ def main() -> None:
     result = {"method": args.method, "street": f"{args.preset} {args.seed}", "variant": args.variant,
               "operators": total, "backward_operators": census.backward,
               "host_reads": sum(census.host_reads.values()), "by_file": dict(census.by_file.most_common()),
+              "by_line": dict(census.by_line.most_common()),
               "host_reads_by_line": dict(sorted(census.host_reads.items()))}  # fmt: skip
     (args.out / "operators.json").write_text(json.dumps(result, indent=1))
     print(f"operators a step: {total:,} ({census.backward:,} in the backward pass); "
           f"host reads on CUDA: {result['host_reads']}")
     for name, count in census.by_file.most_common(args.top):
+        print(f"{count:7,d}  {name}")
+    for name, count in census.by_line.most_common(args.lines):
         print(f"{count:7,d}  {name}")
 
 

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import torch
 from nerfstudio.configs.base_config import MachineConfig, ViewerConfig
-from nerfstudio.engine.optimizers import AdamOptimizerConfig
 from nerfstudio.plugins.types import MethodSpecification
 
 import idsplat_ns._compat.startup as _startup
@@ -21,6 +20,7 @@ from idsplat_ns.errors import install_excepthook
 from idsplat_ns.cli.command_failures import explain_checkpoint_load, explain_export, remove_export_folder
 from idsplat_ns.nerfstudio.datamanager import IDSplatDataManagerConfig
 from idsplat_ns.nerfstudio.model import IDSplatModelConfig
+from idsplat_ns.nerfstudio.optimizers import FusedAdamOptimizerConfig
 from idsplat_ns.nerfstudio.pipeline import IDSplatPipelineConfig
 from idsplat_ns.nerfstudio.schedulers import ExponentialDecaySchedulerConfig
 from idsplat_ns.nerfstudio.trainer_config import IDSplatTrainerConfig
@@ -44,7 +44,7 @@ def _optimizers(max_steps: int, warmup_scale: float = 1.0) -> dict:
                 lr_final=lr_final if lr_final is not None else lr,
                 warmup_steps=int(warmup * warmup_scale), max_steps=max_steps,
             )
-        return {"optimizer": AdamOptimizerConfig(lr=lr, eps=1e-15), "scheduler": sched}
+        return {"optimizer": FusedAdamOptimizerConfig(lr=lr, eps=1e-15), "scheduler": sched}
 
     return {
         "means": group(1.6e-4, 1.6e-6),

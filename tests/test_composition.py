@@ -15,7 +15,8 @@ from idsplat_ns.model.composition import (
     unrotate_quats,
     world_to_canonical,
 )
-from idsplat_ns.model.trajectories import InstanceTrajectories, so3_exp
+from idsplat_ns.model.so3 import so3_exp
+from idsplat_ns.model.trajectories import InstanceTrajectories
 
 D = torch.float64
 

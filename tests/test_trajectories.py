@@ -8,14 +8,8 @@ import torch
 from torch.func import functional_call
 
 from idsplat_ns.data.geometry import make_pose, rot_z
-from idsplat_ns.data.geometry import so3_exp as np_so3_exp
 from idsplat_ns.instances.tracks import InstanceTrack, InstanceTracks
-from idsplat_ns.model.trajectories import (
-    InstanceTrajectories,
-    rotmat_to_quat,
-    so3_exp,
-    so3_log,
-)
+from idsplat_ns.model.trajectories import InstanceTrajectories
 
 TIMES = np.arange(10) * 0.1 + 0.05  # 10 steps, 0.1 s apart
 
@@ -40,18 +34,6 @@ def _two_instances(span_margin=0.0, refine=True, dtype=torch.float64):
     traj = InstanceTrajectories(TIMES, np.array([3, 7]), np.stack([p_a, p_b]), np.stack([v_a, v_b]),
                                 refine=refine, span_margin=span_margin, dtype=dtype)
     return traj, yaws, pos
-
-
-def test_so3_exp_log_match_numpy_and_invert():
-    rng = np.random.default_rng(0)
-    w = rng.normal(size=(50, 3))
-    w *= (rng.uniform(0, 3.0, 50) / np.linalg.norm(w, axis=1))[:, None]  # angles below pi
-    w[:3] *= 1e-7  # small-angle series branch
-    R = so3_exp(torch.from_numpy(w))
-    assert np.allclose(R.numpy(), np.stack([np_so3_exp(x) for x in w]), atol=1e-12)
-    assert np.allclose(so3_log(R).numpy(), w, atol=1e-10)
-    q = rotmat_to_quat(R)
-    assert torch.all(q[:, 0] >= 0) and torch.allclose(q.norm(dim=1), torch.ones(50, dtype=torch.float64))
 
 
 def test_poses_at_step_times_equal_the_steps():

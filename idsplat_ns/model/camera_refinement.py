@@ -27,7 +27,7 @@ import torch
 from torch import Tensor, nn
 
 from idsplat_ns.model.camera_knots import CameraKnots
-from idsplat_ns.model.trajectories import so3_exp
+from idsplat_ns.model.so3 import so3_exp
 
 
 def rigid_correction(rotation: Tensor, translation: Tensor) -> Tensor:  # [3] axis-angle, [3] -> [4, 4]

@@ -13,27 +13,30 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from idsplat_ns.model.trajectories import rotmat_to_quat
+from idsplat_ns.model.so3 import constant, rotmat_to_quat
+
+# The left-multiplication matrix L(a) of a = (w, x, y, z), with a * b = L(a) b, flattened
+# row-major, as a linear map of a: row i of _LEFT holds the signs with which a's component i
+# enters the 16 entries ([w -x -y -z; x w -z y; y z w -x; z -y x w]).
+_LEFT = (
+    (1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1),
+    (0, -1, 0, 0, 1, 0, 0, 0, 0, 0, 0, -1, 0, 0, 1, 0),
+    (0, 0, -1, 0, 0, 0, 0, 1, 1, 0, 0, 0, 0, -1, 0, 0),
+    (0, 0, 0, -1, 0, 0, -1, 0, 0, 1, 0, 0, 1, 0, 0, 0),
+)
 
 
 def quat_multiply(a: Tensor, b: Tensor) -> Tensor:  # a, b: [..., 4] wxyz -> [..., 4]
-    """Hamilton product ``a * b`` (the rotation of ``b`` followed by that of ``a``); norms multiply."""
-    aw, ax, ay, az = a.unbind(-1)
-    bw, bx, by, bz = b.unbind(-1)
-    return torch.stack(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ],
-        -1,
-    )
+    """Hamilton product ``a * b`` (the rotation of ``b`` followed by that of ``a``); norms multiply.
+    One linear map and one product: a handful of operators for any batch (the step is bound by
+    launching them)."""
+    left = (a @ constant(_LEFT, a.dtype, a.device)).unflatten(-1, (4, 4))  # [..., 4, 4]
+    return (left @ b[..., None]).squeeze(-1)
 
 
 def quat_conjugate(q: Tensor) -> Tensor:  # q: [..., 4] -> [..., 4]
     """``(w, -x, -y, -z)``: the inverse rotation for a unit quaternion."""
-    return q * torch.tensor([1.0, -1.0, -1.0, -1.0], dtype=q.dtype, device=q.device)
+    return q * constant((1.0, -1.0, -1.0, -1.0), q.dtype, q.device)
 
 
 def canonical_to_world(points: Tensor, R: Tensor, t: Tensor) -> Tensor:

@@ -33,7 +33,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from idsplat_ns.model.trajectories import InstanceTrajectories, default_span_margin, so3_exp
+from idsplat_ns.model.so3 import so3_exp
+from idsplat_ns.model.trajectories import InstanceTrajectories, default_span_margin
 
 GAUSSIAN_KEYS = ("means", "scales", "quats", "opacities", "features_rgb", "features", "instance_ids")
 TRAJECTORY_KEYS = ("positions", "rotation_deltas", "frame_times", "instance_ids", "span_first", "span_last", "base_rotations")

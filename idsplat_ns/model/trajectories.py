@@ -37,9 +37,7 @@ from torch import Tensor, nn
 
 from idsplat_ns.data.geometry import interpolate_poses
 from idsplat_ns.instances.tracks import InstanceTracks
-
-# Below this angle (radians) the SO(3) exp/log use their Taylor series (gradients stay finite).
-_SMALL_ANGLE = 1e-4
+from idsplat_ns.model.so3 import so3_exp, so3_log
 
 
 @dataclass(frozen=True)
@@ -56,76 +54,6 @@ class TrajectoryLearningRates:
     """Final learning rate of the rotation corrections."""
     warmup_steps: int = 1500
     """Warm-up steps of both groups."""
-
-
-# ---------------------------------------------------------------------------------------------
-# SO(3) maths on torch tensors (differentiable, batched, stable at zero angle)
-# ---------------------------------------------------------------------------------------------
-
-
-def hat(w: Tensor) -> Tensor:  # w: [..., 3] -> [..., 3, 3]
-    """Cross-product matrices ``[w]x`` with ``[w]x @ u == cross(w, u)``."""
-    zero = torch.zeros_like(w[..., 0])
-    x, y, z = w.unbind(-1)
-    return torch.stack(
-        [torch.stack([zero, -z, y], -1), torch.stack([z, zero, -x], -1), torch.stack([-y, x, zero], -1)], -2
-    )
-
-
-def so3_exp(w: Tensor) -> Tensor:  # w: [..., 3] -> [..., 3, 3]
-    """Rodrigues' formula; the series form below ``_SMALL_ANGLE`` keeps the gradient at 0 exact."""
-    theta2 = (w * w).sum(-1)
-    small = theta2 < _SMALL_ANGLE**2
-    # Double-where: the unused branch must not see theta = 0 (its gradient would be NaN).
-    theta2_safe = torch.where(small, torch.ones_like(theta2), theta2)
-    theta = torch.sqrt(theta2_safe)
-    a = torch.where(small, 1.0 - theta2 / 6.0, torch.sin(theta) / theta)
-    b = torch.where(small, 0.5 - theta2 / 24.0, (1.0 - torch.cos(theta)) / theta2_safe)
-    W = hat(w)
-    eye = torch.eye(3, dtype=w.dtype, device=w.device).expand(W.shape)
-    return eye + a[..., None, None] * W + b[..., None, None] * (W @ W)
-
-
-def rotmat_to_quat(R: Tensor) -> Tensor:  # R: [..., 3, 3] -> [..., 4] wxyz, w >= 0
-    """Unit quaternions of rotation matrices (Shepperd's largest-component branch, differentiable).
-
-    All four branches are evaluated with their square-root arguments clamped positive, so the
-    branches that are not selected contribute neither NaN values nor NaN gradients.
-    """
-    r00, r01, r02 = R[..., 0, 0], R[..., 0, 1], R[..., 0, 2]
-    r10, r11, r12 = R[..., 1, 0], R[..., 1, 1], R[..., 1, 2]
-    r20, r21, r22 = R[..., 2, 0], R[..., 2, 1], R[..., 2, 2]
-    args = torch.stack(
-        [1.0 + r00 + r11 + r22, 1.0 + r00 - r11 - r22, 1.0 - r00 + r11 - r22, 1.0 - r00 - r11 + r22], -1
-    )
-    s = 2.0 * torch.sqrt(args.clamp_min(1e-12))  # s_b = 4 * |component b|
-    cands = torch.stack(
-        [
-            torch.stack([0.25 * s[..., 0], (r21 - r12) / s[..., 0], (r02 - r20) / s[..., 0], (r10 - r01) / s[..., 0]], -1),
-            torch.stack([(r21 - r12) / s[..., 1], 0.25 * s[..., 1], (r01 + r10) / s[..., 1], (r02 + r20) / s[..., 1]], -1),
-            torch.stack([(r02 - r20) / s[..., 2], (r01 + r10) / s[..., 2], 0.25 * s[..., 2], (r12 + r21) / s[..., 2]], -1),
-            torch.stack([(r10 - r01) / s[..., 3], (r02 + r20) / s[..., 3], (r12 + r21) / s[..., 3], 0.25 * s[..., 3]], -1),
-        ],
-        -2,
-    )  # [..., 4 branches, 4]
-    branch = args.argmax(-1)
-    q = torch.gather(cands, -2, branch[..., None, None].expand(*branch.shape, 1, 4)).squeeze(-2)
-    return q * torch.where(q[..., :1] < 0, -1.0, 1.0)  # canonical sign: w >= 0
-
-
-def so3_log(R: Tensor) -> Tensor:  # R: [..., 3, 3] -> [..., 3]
-    """Rotation vectors of rotation matrices, through the quaternion (stable at 0 and near pi)."""
-    q = rotmat_to_quat(R)
-    w, v = q[..., 0], q[..., 1:]
-    n2 = (v * v).sum(-1)
-    small = n2 < _SMALL_ANGLE**2
-    n = torch.sqrt(torch.where(small, torch.ones_like(n2), n2))
-    # Double-where: at exactly pi, w = 0 and the unused series branch's 1/w would make the
-    # gradient NaN (0 * inf); near 0, where the series is used, w is about 1.
-    w_safe = torch.where(small, w, torch.ones_like(w))
-    # angle = 2 atan2(|v|, w); factor = angle / |v|, series 2/w (1 - |v|^2 / (3 w^2)) near 0.
-    factor = torch.where(small, 2.0 / w_safe * (1.0 - n2 / (3.0 * w_safe * w_safe)), 2.0 * torch.atan2(n, w) / n)
-    return factor[..., None] * v
 
 
 # ---------------------------------------------------------------------------------------------
