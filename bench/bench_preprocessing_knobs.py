@@ -34,7 +34,6 @@ and FPFH) is imported before the first timing.
 from __future__ import annotations
 
 import os
-import time
 from dataclasses import replace
 from pathlib import Path
 from typing import Optional

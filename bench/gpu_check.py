@@ -35,7 +35,6 @@ import time
 import traceback
 from pathlib import Path
 
-import numpy as np
 import torch
 
 from bench.bench_rasterizer import make_scene

@@ -72,7 +72,7 @@ def by_lidars(seg: Path, n: int) -> None:
     from idsplat_ns.data.waymo.memory import estimate_segment_memory
 
     sets = [("TOP",), ("TOP", "FRONT"), ("TOP", "FRONT", "SIDE_LEFT", "SIDE_RIGHT", "REAR")]
-    print(f"| lidars | returns | rays | peak RSS MB | tracemalloc peak MB | estimate MB | load s |")
+    print("| lidars | returns | rays | peak RSS MB | tracemalloc peak MB | estimate MB | load s |")
     print("|---|---|---|---|---|---|---|")
     for names in sets:
         for second in (False, True):

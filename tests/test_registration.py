@@ -246,8 +246,6 @@ def test_register_with_sensors_refuses_the_other_side():
 def test_upright_hypotheses_only_a_flat_side_does_not_register_upside_down():
     """A car's flat side matches the other side upside down as well as the right way up; with
     ``max_tilt`` only upright transforms are considered (None: any rotation, the paper's)."""
-    from idsplat_ns.instances.registration import upright
-
     assert upright(np.eye(3), math.radians(20.0))
     assert not upright(np.diag([1.0, -1.0, -1.0]), math.radians(20.0))  # upside down
     assert upright(np.diag([1.0, -1.0, -1.0]), None)

@@ -7,7 +7,6 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -48,9 +47,8 @@ def test_why_an_instance_is_static():
 
 
 def test_the_static_threshold_follows_the_option_then_the_preprocessing():
-    pytest.importorskip("nerfstudio")
+    from idsplat_ns.instances.static_conversion import static_threshold
     from idsplat_ns.instances.tracks import InstanceTracks
-    from idsplat_ns.nerfstudio.model import static_threshold
 
     tracks = InstanceTracks(np.arange(3), np.arange(3) * 0.1, [_track(1, [0.0, 0.4, 0.7])], [], {"static_min_displacement": 0.5})
     assert static_threshold(None, tracks) == 0.5  # the model does not undo a smaller preprocessing threshold

@@ -9,6 +9,7 @@ from torch.func import functional_call
 
 from idsplat_ns.data.geometry import make_pose, rot_z
 from idsplat_ns.instances.tracks import InstanceTrack, InstanceTracks
+from idsplat_ns.model.checkpoint_shapes import trajectories_like
 from idsplat_ns.model.trajectories import InstanceTrajectories
 
 TIMES = np.arange(10) * 0.1 + 0.05  # 10 steps, 0.1 s apart
@@ -143,10 +144,6 @@ def test_a_checkpoint_defines_the_trajectories_not_todays_preprocessing():
     """ns-eval re-runs preprocessing; code or settings that changed since training find other
     instances (seed 5 of the small street: 6 instead of 8). Loading the checkpoint rebuilds the
     trajectories in its shape, and they then pose and show instances exactly as trained."""
-    from types import SimpleNamespace
-
-    from idsplat_ns.nerfstudio.model import IDSplatModel
-
     trained, _, _ = _two_instances(span_margin=None, dtype=torch.float32)
     with torch.no_grad():
         trained.positions.add_(0.3)  # "optimised"
@@ -154,12 +151,12 @@ def test_a_checkpoint_defines_the_trajectories_not_todays_preprocessing():
     state = {f"scene_model.trajectories.{k}": v for k, v in trained.state_dict().items()}
     state["scene_model.camera_time_offset"] = torch.tensor([0.01, -0.02])
     today = InstanceTrajectories(TIMES[:4], np.array([1]), np.tile(np.eye(4), (1, 4, 1, 1)), np.ones((1, 4), bool))
-    model = SimpleNamespace(scene_model=torch.nn.Module(), config=SimpleNamespace(refine_trajectories=True), device="cpu")
-    model.scene_model.trajectories = today
-    model.scene_model.camera_time_offset = None
-    assert IDSplatModel._trajectories_like(model, state)
-    model.scene_model.load_state_dict({k.removeprefix("scene_model."): v for k, v in state.items()})
-    loaded = model.scene_model.trajectories
+    scene_model = torch.nn.Module()
+    scene_model.trajectories = today
+    scene_model.camera_time_offset = None
+    assert trajectories_like(scene_model, state, refine=True, device="cpu")
+    scene_model.load_state_dict({k.removeprefix("scene_model."): v for k, v in state.items()})
+    loaded = scene_model.trajectories
     loaded.reset_span_margin()
     assert loaded.span_margin == pytest.approx(trained.span_margin)
     assert loaded.instance_ids.tolist() == [3, 7]
@@ -170,6 +167,6 @@ def test_a_checkpoint_defines_the_trajectories_not_todays_preprocessing():
         torch.testing.assert_close(R1[p1], R0[p0])
         torch.testing.assert_close(t1[p1], t0[p0])
     # Same shape and IDs: nothing is rebuilt. No trajectories in the checkpoint: none here either.
-    assert not IDSplatModel._trajectories_like(model, state)
-    assert not IDSplatModel._trajectories_like(model, {"scene_model.gaussians.means": torch.zeros(1, 3)})
-    assert model.scene_model.trajectories is None and model.scene_model.camera_time_offset is None
+    assert not trajectories_like(scene_model, state, refine=True, device="cpu")
+    assert not trajectories_like(scene_model, {"scene_model.gaussians.means": torch.zeros(1, 3)}, refine=True, device="cpu")
+    assert scene_model.trajectories is None and scene_model.camera_time_offset is None

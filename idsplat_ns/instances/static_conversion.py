@@ -56,6 +56,16 @@ class StaticConversionConfig:
     # The extent check reuses ``min_displacement`` (see the module docstring).
 
 
+def static_threshold(option: Optional[float], tracks: Optional[InstanceTracks]) -> float:
+    """Metres below which an instance is static: the option, else the preprocessing's (so the
+    model never undoes a smaller threshold the user gave there), else the paper's 1 m."""
+    if option is not None:
+        return float(option)
+    if tracks is not None and "static_min_displacement" in tracks.metadata:
+        return float(tracks.metadata["static_min_displacement"])
+    return StaticConversionConfig().min_displacement
+
+
 def world_overlap_fractions(
     observations: Sequence[InstanceObservation], distance: float, min_points: int = 10
 ) -> np.ndarray:  # -> [K] one fraction per scored frame

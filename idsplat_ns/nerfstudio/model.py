@@ -28,9 +28,10 @@ from idsplat_ns.data.images import load_rgb
 from idsplat_ns.eval.image_metrics import colour_aligned, psnr, ssim
 from idsplat_ns.eval.lpips import LPIPS
 from idsplat_ns.eval.object_diagnosis import object_pixel_errors
-from idsplat_ns.instances.static_conversion import StaticConversionConfig, convert_static_instances
+from idsplat_ns.instances.static_conversion import StaticConversionConfig, convert_static_instances, static_threshold
 from idsplat_ns.model.camera_refinement import ImagePoseCorrection, RigCorrection
 from idsplat_ns.model.camera_shutter import ShutterLookup
+from idsplat_ns.model.checkpoint_shapes import deformation_like, trajectories_like
 from idsplat_ns.model.deformation import DeformationConfig, InstanceDeformation, deformable_instance_ids
 from idsplat_ns.model.exposure import ImageExposure
 from idsplat_ns.model.gaussians import GaussianSet
@@ -55,16 +56,6 @@ from idsplat_ns.ranges import POSITIVE, UNIT, bounded
 
 CONSOLE = Console()
 GAUSSIAN_GROUPS = GaussianSet.PARAM_NAMES
-
-
-def static_threshold(option: Optional[float], tracks) -> float:
-    """Metres below which an instance is static: the option, else the preprocessing's (so the
-    model never undoes a smaller threshold the user gave there), else the paper's 1 m."""
-    if option is not None:
-        return float(option)
-    if tracks is not None and "static_min_displacement" in tracks.metadata:
-        return float(tracks.metadata["static_min_displacement"])
-    return StaticConversionConfig().min_displacement
 
 
 @dataclass
@@ -320,8 +311,8 @@ class IDSplatModel(Model):
         if num != self.gaussians.num:
             self.gaussians.resize_(num)
         self.step = 10**9  # a loaded model renders at full resolution
-        rebuilt = self._trajectories_like(state_dict)
-        self._deformation_like(state_dict)
+        rebuilt = trajectories_like(self.scene_model, state_dict, self.config.refine_trajectories, self.device)
+        deformation_like(self.scene_model, state_dict, self.device)
         # The checkpoint's per-image colour (its knots, or none), whatever today's settings say,
         self.exposure = ImageExposure.like(state_dict, "exposure.").to(self.device) if "exposure.affine" in state_dict else None
         rig = state_dict.get("rig_correction.rotation")  # and its camera calibration correction
@@ -333,43 +324,6 @@ class IDSplatModel(Model):
         if rebuilt:
             self.scene_model.trajectories.reset_span_margin()
         return out
-
-    def _trajectories_like(self, state_dict) -> bool:
-        """Make the instance trajectories (and the camera time offsets that come with them) the
-        checkpoint's shape. The datamanager re-runs preprocessing at ns-eval/viewer time, and a
-        different version of the code (or settings) can find other instances than the run was
-        trained with: the checkpoint is the truth. Returns whether the trajectories were rebuilt."""
-        sm = self.scene_model
-        prefix = "scene_model.trajectories."
-        if prefix + "positions" not in state_dict:
-            sm.trajectories = None
-            sm.camera_time_offset = None
-            return False
-        Z, F = state_dict[prefix + "positions"].shape[:2]
-        ids = state_dict[prefix + "instance_ids"]
-        current = sm.trajectories
-        if current is not None and current.positions.shape[:2] == (Z, F) and torch.equal(current.instance_ids.cpu(), ids.cpu()):
-            return False
-        sm.trajectories = InstanceTrajectories.placeholder(Z, F, refine=self.config.refine_trajectories).to(self.device)
-        if "scene_model.camera_time_offset" in state_dict and sm.camera_time_offset is None:
-            sm.camera_time_offset = nn.Parameter(torch.zeros_like(state_dict["scene_model.camera_time_offset"]))
-        return True
-
-    def _deformation_like(self, state_dict) -> None:
-        """Give the model the checkpoint's deformation (or none), whatever today's settings say."""
-        sm = self.scene_model
-        codes = state_dict.get("scene_model.deformation.codes")
-        if codes is None:
-            sm.deformation = None
-            return
-        D, F, C = codes.shape
-        hidden = int(state_dict["scene_model.deformation.mlp.0.weight"].shape[0])
-        freqs = (int(state_dict["scene_model.deformation.mlp.0.weight"].shape[1]) - C - 3) // 6
-        current = sm.deformation
-        if current is not None and tuple(current.codes.shape) == (D, F, C) and current.mlp[0].out_features == hidden \
-                and current.position_freqs == freqs:
-            return
-        sm.deformation = InstanceDeformation.placeholder(D, F, C, hidden, freqs).to(self.device)
 
     # --- rendering ----------------------------------------------------------------------------
     def _camera_inputs(self, host: HostCamera, downscale: int) -> tuple[Tensor, Tensor, int, int]:

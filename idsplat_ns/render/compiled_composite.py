@@ -272,7 +272,7 @@ def _backward(coeffs, params, centres, basis, feats, gid, offsets, order, valid,
     summed by the caller). Rows are recovered back to front one by one and their gradients taken
     ``_BATCH`` rows at a time (:func:`_rows_backward`)."""
     ac, e_clamp, one, zero = _alpha_constants(consts), consts[0], consts[5], consts[6]
-    slots, d, from_coeffs = basis.shape[2], feats.shape[1], coeffs.shape[0] > 0
+    slots, from_coeffs = basis.shape[2], coeffs.shape[0] > 0
     has_valid, has_cutoff = valid.shape[0] > 0, g_before.shape[0] > 0
     for i in range(order.shape[0]):
         t = order[i]
