@@ -16,9 +16,12 @@
 # the first backend, right after this engine's first training (run from inside DIR, whose packages
 # `python -m` then imports first). Each training is stopped (SIGINT) after TRAIN_SECONDS and its
 # last checkpoint (one every SAVE_EVERY steps) is evaluated.
-# gsplat's CUDA code is compiled in the background from the start (GSPLAT=0: no build); the
-# trainings with the torch backend run meanwhile, one with gsplat waits for the build. GPU_TESTS=1
-# runs gsplat's and the Triton compositor's parity tests once gsplat is built (pytest.log).
+# gsplat's CUDA code is compiled in the background from the start (GSPLAT=0: no build) while the
+# street is generated; the trainings start once it is built (a training step is bound by the host:
+# beside a compiler on 10 of 16 cores the same step took 1.5 times as long,
+# docs/reports/2026-11-28-gpu-ns-train.md). TIME_DURING_BUILD=1 lets the torch-backend trainings
+# run during the build, on the cores it leaves, for a call short of time. GPU_TESTS=1 runs gsplat's
+# and the Triton compositor's parity tests once gsplat is built (pytest.log).
 # Every step's time is logged (--logging.max-buffer-size 1) and nvidia-smi samples the GPU's
 # memory every 2 s; bench/train_run_times.py then writes OUT/step_times.md: the median step over
 # steps STEP_FROM..STEP_TO (default 100..400), the peak GPU memory of each training and its ns-eval.
@@ -67,8 +70,9 @@ if $PY -c 'import torch, sys; sys.exit(0 if torch.cuda.is_available() else 1)'; 
         >"$OUT/logs/gpu_memory.txt" 2>/dev/null &
     SMI=$!
     if [ "${GSPLAT:-1}" = 1 ]; then
-        # Leave cores to the trainings that run while it builds: their steps are bound by the host.
-        JOBS=$(( $(nproc) > 8 ? $(nproc) - 6 : $(nproc) ))
+        # Every core, unless trainings run beside the build (their steps are bound by the host).
+        JOBS=$(nproc)
+        [ "${TIME_DURING_BUILD:-0}" = 1 ] && JOBS=$(( JOBS > 8 ? JOBS - 6 : JOBS ))
         export MAX_JOBS=${MAX_JOBS:-$JOBS} TORCH_CUDA_ARCH_LIST=${TORCH_CUDA_ARCH_LIST:-9.0}
         $PY -c "import time; t = time.time(); from gsplat.cuda._backend import _C; print('gsplat built', _C is not None, round(time.time() - t), 's')" \
             >"$OUT/logs/gsplat_build.log" 2>&1 &
@@ -131,7 +135,9 @@ train_and_eval() {
 
 for i in "${!BACKEND_LIST[@]}"; do
     backend=${BACKEND_LIST[$i]}
-    [ "$backend" = torch ] || wait_for_gsplat || continue
+    if [ "$backend" != torch ] || [ "${TIME_DURING_BUILD:-0}" != 1 ]; then
+        wait_for_gsplat || [ "$backend" = torch ] || continue
+    fi
     train_and_eval "$PWD" "this-$backend" "$backend"
     if [ "$i" = 0 ] && [ -n "${AGAINST_TREE:-}" ]; then
         [ -d "$AGAINST_TREE/idsplat_ns" ] || { stamp "AGAINST_TREE=$AGAINST_TREE has no idsplat_ns/"; exit 1; }
