@@ -137,6 +137,8 @@ RULES = [
     # Lifting (new lifting, features and registration per street).
     Rule("full-erosion", "lifting", "lifting.min_kept_area", 0.0,
          "masks eroded less where 3 px would remove more than half of a small mask"),
+    Rule("with-ground-neighbourhood", "lifting", "masks.lidar_motion.ground_neighbourhood", 2.0,
+         "lidar motion's ground no higher than the lowest cell within 2 m + 0.15 m (off by default)", default_on=False),
 ]
 RULE_BY_NAME = {r.name: r for r in RULES}
 

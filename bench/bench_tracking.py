@@ -108,7 +108,8 @@ def main() -> None:
         "frames' tracks at every frame, 2 m; vehicles only in the counts", "",
         "| seed | MOTA@2m | MOTP@2m | IDF1@2m | ID switches | fragmentations | frames lost | lost within 10 m | "
         "gaps > 3 frames | preprocessing s | s an instance |",
-        "|---|---|---|---|---|---|---|---|---|---|---|", *lines, "", manoeuvre_table(records)])  # fmt: skip
+        "|---|---|---|---|---|---|---|---|---|---|---|", *lines, "", distance_table(all_vehicles), "",
+        manoeuvre_table(records)])  # fmt: skip
     print("\n" + table)
     if args.out is not None:
         args.out.write_text(table + "\n")
@@ -124,6 +125,24 @@ def _row(name: str, summary, vehicles: list["ObjectRecord"], seconds: str) -> st
             f"{sum(r.frames_lost for r in vehicles)} / {sum(len(r.frames) for r in vehicles)} | "
             f"{sum(r.frames_lost_near for r in vehicles)} / {sum(r.frames_near for r in vehicles)} | "
             f"{sum(r.longest_lost > 3 for r in vehicles)} | {seconds} |")
+
+
+DISTANCE_BANDS = (0.0, 10.0, 20.0, 40.0, 60.0, 80.0)
+"""Metres from the ego's lidar: the bands of :func:`distance_table`."""
+
+
+def distance_table(vehicles: list["ObjectRecord"]) -> str:
+    """The vehicles' frames lost against their distance to the ego, over all seeds: where tracking
+    fails (passes next to the ego, or far away where lidar returns thin out)."""
+    lost = np.zeros(len(DISTANCE_BANDS) - 1, int)
+    seen = np.zeros_like(lost)
+    for r in vehicles:
+        band = np.clip(np.searchsorted(DISTANCE_BANDS, r.distance_to_ego, side="right") - 1, 0, len(lost) - 1)
+        np.add.at(seen, band, 1)
+        np.add.at(lost, band, ~np.asarray(r.tracked, bool))
+    names = [f"{a:.0f}-{b:.0f} m" for a, b in zip(DISTANCE_BANDS[:-1], DISTANCE_BANDS[1:])]
+    return "\n".join(["| vehicle frames lost | " + " | ".join(names) + " |", "|---|" + "---|" * len(names),
+                      "| lost / counted | " + " | ".join(f"{a} / {b}" for a, b in zip(lost, seen)) + " |"])
 
 
 def manoeuvre_table(records: list[tuple[int, "ObjectRecord"]]) -> str:

@@ -43,6 +43,42 @@ def test_ground_is_the_low_rank_per_cell_and_objects_stand_above_it():
     assert len(pts) > 200 and np.all(pts[:, 0] > 3.9) and np.all(pts[:, 2] > -1.8 + config.min_height)
 
 
+def test_cell_heights_capped_by_their_neighbours_match_a_brute_force_search():
+    from idsplat_ns.instances.ground import _key_centres, capped_by_neighbours, cell_keys
+
+    rng = np.random.default_rng(3)
+    xy = rng.uniform(-6, 6, (400, 2))
+    keys, first = np.unique(cell_keys(xy, 0.5), return_index=True)
+    heights = rng.uniform(-2, 1, len(keys))
+    capped = capped_by_neighbours(keys, heights, 0.5, 1.2, 0.15)
+    centres = _key_centres(keys, 0.5)
+    dist = np.linalg.norm(centres[:, None] - centres[None], axis=-1)
+    reference = np.minimum(heights, np.where(dist <= 1.2 + 1e-9, heights[None], np.inf).min(1) + 0.15)
+    assert np.array_equal(capped, reference)
+    assert capped_by_neighbours(keys, heights, 0.5, 0.0, 0.15) is heights  # off
+
+
+def test_a_car_over_road_the_lidar_never_saw_stands_above_the_ground_its_neighbours_give():
+    # The road is seen beside the lane, never under it (far away the lines pass over it): without
+    # the cap the car's own lowest points are the ground of its cells and most of it vanishes.
+    rng = np.random.default_rng(1)
+    road = np.c_[rng.uniform(40, 60, (3000, 1)), rng.uniform(1.5, 5, (3000, 1)), rng.normal(-1.9, 0.01, (3000, 1))]
+    car = np.c_[rng.uniform(48, 52.5, (400, 1)), rng.uniform(-0.2, 1.0, (400, 1)), rng.uniform(-1.5, -0.4, (400, 1))]
+    sweep = _sweep(np.concatenate([road, car]))
+    plain = LidarMotionConfig()
+    capped = dataclasses.replace(plain, ground_neighbourhood=2.0)
+    keys, heights = ground_heights([sweep], plain.ground_cell, plain.ground_rank)
+    from idsplat_ns.instances.ground import capped_by_neighbours
+
+    lifted = capped_by_neighbours(keys, heights, capped.ground_cell, capped.ground_neighbourhood,
+                                  capped.ground_neighbourhood_slack)
+    without, _ = object_points(sweep, keys, heights, plain)
+    with_cap, _ = object_points(sweep, keys, lifted, capped)
+    car_without, car_with = without[without[:, 1] < 1.2], with_cap[with_cap[:, 1] < 1.2]
+    assert len(car_with) > 0.95 * len(car) and len(car_without) < 0.7 * len(car)
+    assert len(with_cap) - len(car_with) == len(without) - len(car_without) == 0  # the road stays ground
+
+
 def test_free_space_evidence_passing_ending_and_occluded_rays():
     # Another sweep's rays fan out from the origin to a wall at x = 20.
     az = np.radians(np.arange(-20, 20, 0.1))

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from typing import Iterable
 
 import numpy as np
+from scipy.ndimage import minimum_filter
 from scipy.spatial import cKDTree
 
 from idsplat_ns.errors import IDSplatError
@@ -108,6 +109,28 @@ def cell_heights(point_sets: Iterable[np.ndarray], cell: float, rank: int) -> tu
     k, z = _lowest_per_cell(np.concatenate(keys), np.concatenate(heights), rank + 1)
     starts, ends = _run_bounds(k)
     return k[starts], z[np.minimum(starts + rank, ends - 1)]
+
+
+def capped_by_neighbours(keys: np.ndarray, heights: np.ndarray, cell: float, radius: float,
+                         slack: float) -> np.ndarray:  # keys, heights: [C] -> [C]
+    """Cell heights no higher than the lowest cell within ``radius`` metres plus ``slack``.
+
+    Where the lidar never saw the road in a cell (far away, where the lines thin out, or under
+    the vehicles that drive over it) the cell's lowest points are an object's, and its height is
+    the object's body: the object's lower points then read as ground. A nearby cell that did see
+    the road gives its height. ``radius`` 0: unchanged."""
+    if radius <= 0 or len(keys) == 0:
+        return heights
+    ij = np.round(_key_centres(keys, cell) / cell - 0.5).astype(np.int64)  # [C, 2] cell indices
+    lo = ij.min(0)
+    ij -= lo
+    grid = np.full(tuple(ij.max(0) + 1), np.inf)
+    grid[ij[:, 0], ij[:, 1]] = heights
+    r = int(np.ceil(radius / cell))
+    di, dj = np.mgrid[-r : r + 1, -r : r + 1]
+    lowest = minimum_filter(grid, footprint=(di * di + dj * dj) * cell * cell <= radius * radius, mode="constant",
+                            cval=np.inf)
+    return np.minimum(heights, lowest[ij[:, 0], ij[:, 1]] + slack)
 
 
 class GroundSurface:

@@ -40,7 +40,7 @@ from idsplat_ns.data.lidar import LidarSweep
 from idsplat_ns.data.scene import Scene
 from idsplat_ns.errors import IDSplatError
 from idsplat_ns.instances.free_space import EvidenceSweeps, motion_compensated_scores, score_clusters
-from idsplat_ns.instances.ground import cell_heights, cell_keys
+from idsplat_ns.instances.ground import capped_by_neighbours, cell_heights, cell_keys
 from idsplat_ns.instances.motion_tracks import LidarMotionConfig, MotionCluster, MotionTrack
 from idsplat_ns.instances.voxel_dbscan import voxel_dbscan
 
@@ -116,6 +116,8 @@ def moving_tracks(scene: Scene, config: LidarMotionConfig, progress: bool = Fals
     if not sweeps:
         raise IDSplatError(f"scene {scene.name}: no lidar sweeps; the lidar-motion instance source needs lidar")
     keys, heights = ground_heights(sweeps, config.ground_cell, config.ground_rank)
+    heights = capped_by_neighbours(keys, heights, config.ground_cell, config.ground_neighbourhood,
+                                   config.ground_neighbourhood_slack)
     clusters = []
     for k, sweep in enumerate(tqdm(sweeps, desc="lidar motion: clusters", unit="sweep", disable=not progress)):
         pts, times = object_points(sweep, keys, heights, config)

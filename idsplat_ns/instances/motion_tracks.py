@@ -27,6 +27,12 @@ class LidarMotionConfig:
     """Metres: side of the ground height cells."""
     ground_rank: int = 2
     """A cell's ground height is its ``ground_rank``-th lowest point (the lowest are noise)."""
+    ground_neighbourhood: float = 0.0
+    """Metres: a cell's ground height is at most the lowest cell's within this radius plus
+    ``ground_neighbourhood_slack`` (a cell whose road the lidar never saw takes the body of the
+    vehicles that drove over it for the ground; 0: off)."""
+    ground_neighbourhood_slack: float = 0.15
+    """Metres above the lowest neighbouring cell that a cell's ground may stand (slopes, kerbs)."""
     min_height: float = 0.3
     """Metres above the ground a point must be to belong to an object."""
     max_height: float = 4.0
