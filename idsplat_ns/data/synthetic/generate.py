@@ -11,6 +11,7 @@ import json
 import multiprocessing
 import os
 import shutil
+import uuid
 from pathlib import Path
 from typing import Optional
 
@@ -258,9 +259,8 @@ def generate_sequence(
         if _record_matches(record_path, record):
             return final
         raise IDSplatError(f"{final} exists and was not made with these settings; remove it or pass --overwrite")
-    tmp = out_dir / f".{final.name}.tmp-{os.getpid()}"
-    if tmp.exists():
-        shutil.rmtree(tmp)
+    # Unique per call: two threads of one process may generate the same street at once.
+    tmp = out_dir / f".{final.name}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}"
     _make_folders(tmp, config)
     try:
         frames = _render_frames(config, seed, tmp, workers, progress)
