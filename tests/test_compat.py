@@ -26,6 +26,29 @@ def test_startup_hook_file(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == [PTH_NAME]  # nothing temporary left behind
 
 
+def test_the_start_up_hook_leaves_the_package_to_the_program_s_own_path(tmp_path):
+    """With the hook installed (make install), a Python started in another tree imports that tree's
+    idsplat_ns (the side-by-side benches run engines so), and the guard finder is in place."""
+    import subprocess
+    import sys
+    import sysconfig
+    from pathlib import Path
+
+    import pytest
+
+    from idsplat_ns._compat.startup import PTH_NAME
+
+    if not (Path(sysconfig.get_paths()["purelib"]) / PTH_NAME).exists():
+        pytest.skip("the start-up hook is not installed in this environment (idsplat-install-compat)")
+    (tmp_path / "idsplat_ns").mkdir()
+    (tmp_path / "idsplat_ns" / "__init__.py").write_text('__version__ = "another tree"\n')
+    code = ("import sys; finder = any(type(f).__name__ == '_GuardFinder' for f in sys.meta_path); "
+            "before = sorted(n for n in sys.modules if n.startswith('idsplat_ns')); "
+            "import idsplat_ns; print(finder, before, idsplat_ns.__version__)")
+    out = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "True [] another tree"
+
+
 def test_nerfstudio_external_method_placeholders_skip_the_stack_walk(capsys):
     import pytest
 

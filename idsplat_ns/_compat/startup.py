@@ -62,9 +62,20 @@ class _ThenPatch(Loader):
 
 
 def install() -> None:
-    """Put the guard finder first on ``sys.meta_path`` (idempotent)."""
-    if not any(isinstance(f, _GuardFinder) for f in sys.meta_path):
+    """Put the guard finder first on ``sys.meta_path`` (idempotent: by name, since the finder the
+    start-up hook installed may come from a copy of this module that is no longer imported)."""
+    if not any(type(f).__name__ == _GuardFinder.__name__ for f in sys.meta_path):
         sys.meta_path.insert(0, _GuardFinder())
+
+
+def install_at_start_up() -> None:
+    """The ``.pth`` file's call: :func:`install`, then the project's modules are forgotten again, so
+    that a program imports ``idsplat_ns`` from wherever its own path says (``python -m`` in another
+    revision's tree gets that tree's), not from the installed copy the hook was read from. The
+    finder keeps working: it imports what it needs by name when a guarded module is imported."""
+    install()
+    for name in [n for n in sys.modules if n == "idsplat_ns" or n.startswith("idsplat_ns.")]:
+        del sys.modules[name]
 
 
 def write_pth(site_packages: str | None = None) -> str:
@@ -76,7 +87,7 @@ def write_pth(site_packages: str | None = None) -> str:
 
     target = Path(site_packages or sysconfig.get_paths()["purelib"]) / PTH_NAME
     with atomic_path(target) as tmp:
-        tmp.write_text("import idsplat_ns._compat.startup as _idsplat_startup; _idsplat_startup.install()\n")
+        tmp.write_text("import idsplat_ns._compat.startup as _idsplat_startup; _idsplat_startup.install_at_start_up()\n")
     return str(target)
 
 
