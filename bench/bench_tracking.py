@@ -132,17 +132,25 @@ DISTANCE_BANDS = (0.0, 10.0, 20.0, 40.0, 60.0, 80.0)
 
 
 def distance_table(vehicles: list["ObjectRecord"]) -> str:
-    """The vehicles' frames lost against their distance to the ego, over all seeds: where tracking
-    fails (passes next to the ego, or far away where lidar returns thin out)."""
-    lost = np.zeros(len(DISTANCE_BANDS) - 1, int)
-    seen = np.zeros_like(lost)
+    """The vehicles' frames lost and the median position error of the frames tracked, against
+    their distance to the ego, over all seeds: where tracking fails (passes next to the ego, or
+    far away where lidar returns thin out) and where its poses are off (near the ego an error
+    covers the most pixels)."""
+    bands = len(DISTANCE_BANDS) - 1
+    lost, seen = np.zeros(bands, int), np.zeros(bands, int)
+    errors: list[list[float]] = [[] for _ in range(bands)]
     for r in vehicles:
-        band = np.clip(np.searchsorted(DISTANCE_BANDS, r.distance_to_ego, side="right") - 1, 0, len(lost) - 1)
+        band = np.clip(np.searchsorted(DISTANCE_BANDS, r.distance_to_ego, side="right") - 1, 0, bands - 1)
         np.add.at(seen, band, 1)
         np.add.at(lost, band, ~np.asarray(r.tracked, bool))
+        for b, tracked, err in zip(band, r.tracked, r.error):
+            if tracked and np.isfinite(err):
+                errors[b].append(float(err))
     names = [f"{a:.0f}-{b:.0f} m" for a, b in zip(DISTANCE_BANDS[:-1], DISTANCE_BANDS[1:])]
-    return "\n".join(["| vehicle frames lost | " + " | ".join(names) + " |", "|---|" + "---|" * len(names),
-                      "| lost / counted | " + " | ".join(f"{a} / {b}" for a, b in zip(lost, seen)) + " |"])
+    median = [f"{np.median(e):.2f}" if e else "-" for e in errors]
+    return "\n".join(["| vehicles | " + " | ".join(names) + " |", "|---|" + "---|" * len(names),
+                      "| frames lost / counted | " + " | ".join(f"{a} / {b}" for a, b in zip(lost, seen)) + " |",
+                      "| median error of tracked frames, m | " + " | ".join(median) + " |"])
 
 
 def manoeuvre_table(records: list[tuple[int, "ObjectRecord"]]) -> str:
