@@ -49,6 +49,25 @@ def test_the_start_up_hook_leaves_the_package_to_the_program_s_own_path(tmp_path
     assert out.stdout.strip() == "True [] another tree"
 
 
+def test_the_guard_finder_steps_aside_for_another_revisions_copy(monkeypatch):
+    """Another revision's code installs its own copy of the finder (its install() tells them apart by
+    class): only one may guard, or torchvision's operators would be defined twice."""
+    import sys
+
+    import idsplat_ns._compat.torchvision_ops  # noqa: F401 - imported before meta_path is narrowed
+    from idsplat_ns._compat import startup
+
+    class _GuardFinder:  # the other copy: the same name, another class
+        def find_spec(self, fullname, path=None, target=None):
+            return None
+
+    mine = startup._GuardFinder()
+    monkeypatch.setattr(sys, "meta_path", [_GuardFinder(), mine])
+    assert mine.find_spec("torchvision") is None and "torchvision" not in mine._done
+    monkeypatch.setattr(sys, "meta_path", [mine])
+    assert mine.find_spec("torchvision") is None and "torchvision" in mine._done  # alone, it guards
+
+
 def test_nerfstudio_external_method_placeholders_skip_the_stack_walk(capsys):
     import pytest
 

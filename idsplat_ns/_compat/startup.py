@@ -14,6 +14,7 @@ from importlib.machinery import PathFinder
 
 PTH_NAME = "idsplat_ns_compat.pth"
 _NERFSTUDIO_EXTERNAL_METHODS = "nerfstudio.configs.external_methods"  # see nerfstudio_startup.py
+_GUARDED = (_NERFSTUDIO_EXTERNAL_METHODS, "torchvision", "open3d")
 
 
 class _GuardFinder(MetaPathFinder):
@@ -23,7 +24,13 @@ class _GuardFinder(MetaPathFinder):
         self._done: set[str] = set()
 
     def find_spec(self, fullname, path=None, target=None):  # noqa: D401 - importlib protocol
-        if fullname == _NERFSTUDIO_EXTERNAL_METHODS and fullname not in self._done:
+        if fullname not in _GUARDED or fullname in self._done:
+            return None
+        if any(type(f).__name__ == type(self).__name__ and f is not self for f in sys.meta_path):
+            # Another copy of this finder, installed by another revision's own code (its install()
+            # tells copies apart by class): it guards, so that no guard runs twice.
+            return None
+        if fullname == _NERFSTUDIO_EXTERNAL_METHODS:
             self._done.add(fullname)
             from idsplat_ns._compat.nerfstudio_startup import speed_up_external_methods
 
@@ -31,7 +38,7 @@ class _GuardFinder(MetaPathFinder):
             if spec is not None and spec.loader is not None:
                 spec.loader = _ThenPatch(spec.loader, speed_up_external_methods)
             return spec
-        if fullname in ("torchvision", "open3d") and fullname not in self._done:
+        if fullname in ("torchvision", "open3d"):
             self._done.add(fullname)
             if fullname == "torchvision":
                 from idsplat_ns._compat.torchvision_ops import ensure_importable
