@@ -136,19 +136,26 @@ def road_user_cuboids(world: World, t: float) -> list[dict]:
 _STATE: dict = {}
 
 
-def _init_worker(config: SyntheticConfig, seed: int, tmp: str) -> None:
+def _frame_state(config: SyntheticConfig, seed: int, tmp: str) -> dict:
+    """What rendering a frame reads: the world, its ray caster, the cameras, the folder, the seed."""
     world = build_world(config, seed)
-    _STATE.update(world=world, caster=RayCaster(world), cameras=cameras(config), tmp=Path(tmp), seed=seed)
+    return dict(world=world, caster=RayCaster(world), cameras=cameras(config), tmp=Path(tmp), seed=seed)
 
 
-def _make_frame(k: int) -> dict:
-    """Render and write frame `k`; returns its poses and time stamps."""
-    world, caster, tmp, seed = _STATE["world"], _STATE["caster"], _STATE["tmp"], _STATE["seed"]
+def _init_worker(config: SyntheticConfig, seed: int, tmp: str) -> None:
+    _STATE.update(_frame_state(config, seed, tmp))
+
+
+def _make_frame(k: int, state: Optional[dict] = None) -> dict:
+    """Render and write frame `k` (with ``state``, else the worker process's); returns its poses
+    and time stamps. In-process generation passes its own state: threads share ``_STATE``."""
+    state = _STATE if state is None else state
+    world, caster, tmp, seed = state["world"], state["caster"], state["tmp"], state["seed"]
     cfg = world.config
     name = f"{k:02d}"
     t = k / cfg.frame_rate  # local clock: 0 at frame 0
     out: dict = {"cameras": {}}
-    for c, cam in enumerate(_STATE["cameras"]):
+    for c, cam in enumerate(state["cameras"]):
         t_img = t + cam.time_offset
         image, instance, _ = render_camera(caster, cam, t_img, cfg.cameras.supersample, cfg.cameras.shadows,
                                            rolling_shutter_of(cfg))
@@ -276,10 +283,10 @@ def _render_frames(config: SyntheticConfig, seed: int, tmp: Path, workers: int, 
     bar = tqdm(total=config.num_frames, desc=f"synthetic {config.name}", unit="frame", disable=not progress)
     try:
         if workers <= 1:
-            _init_worker(config, seed, str(tmp))
+            state = _frame_state(config, seed, str(tmp))
             frames = []
             for k in range(config.num_frames):
-                frames.append(_make_frame(k))
+                frames.append(_make_frame(k, state))
                 bar.update()
             return frames
         ctx = multiprocessing.get_context("spawn")  # safe under torch and threads
