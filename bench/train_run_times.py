@@ -23,16 +23,19 @@ ALLOCATED_TAG = "GPU Memory (MB)"  # torch.cuda.max_memory_allocated, logged eve
 EVAL_COLUMNS = (("psnr", "PSNR"), ("ssim", "SSIM"), ("dpsnr", "DPSNR"), ("lidar_depth_median_sq_err", "lidar depth m²"))
 
 
-def scalars(events_dir: Path, tag: str) -> dict[int, float]:
-    """Step -> value of one scalar, from a training's tensorboard events files."""
+def scalars(events_dir: Path, tags: tuple[str, ...]) -> dict[str, dict[int, float]]:
+    """Per tag, step -> value of that scalar, from a training's tensorboard events files (each
+    file read once for all tags)."""
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-    values: dict[int, float] = {}
+    values: dict[str, dict[int, float]] = {tag: {} for tag in tags}
     for path in sorted(events_dir.glob("events.out.tfevents.*")):
         acc = EventAccumulator(str(path), size_guidance={"scalars": 0})
         acc.Reload()
-        if tag in acc.Tags().get("scalars", []):
-            values.update({e.step: e.value for e in acc.Scalars(tag)})
+        logged = acc.Tags().get("scalars", [])
+        for tag in tags:
+            if tag in logged:
+                values[tag].update({e.step: e.value for e in acc.Scalars(tag)})
     return values
 
 
@@ -54,23 +57,24 @@ def read_samples(path: Path) -> list[tuple[int, int]]:
 def summarise(logs: Path, first: int, last: int) -> list[dict]:
     samples = read_samples(logs / "gpu_memory.txt")
     rows = []
-    for run_file in sorted(logs.glob("*/run.json"), key=lambda p: json.loads(p.read_text())["start"]):
-        run = json.loads(run_file.read_text())
-        seconds = scalars(run_file.parent, STEP_TIME_TAG)
-        allocated = scalars(run_file.parent, ALLOCATED_TAG)
+    runs = sorted(((json.loads(p.read_text()), p.parent) for p in logs.glob("*/run.json")), key=lambda r: r[0]["start"])
+    for run, folder in runs:
+        logged = scalars(folder, (STEP_TIME_TAG, ALLOCATED_TAG))
+        seconds, allocated = logged[STEP_TIME_TAG], logged[ALLOCATED_TAG]
         window = [s for step, s in seconds.items() if first <= step <= last]
+        deciles = statistics.quantiles(window, n=10) if len(window) >= 10 else [None]
         row = {**run, "steps_logged": len(seconds), "last_step": max(seconds, default=None),
                "steps_in_window": len(window),
                "median_step_s": statistics.median(window) if window else None,
-               "p10_step_s": statistics.quantiles(window, n=10)[0] if len(window) >= 10 else None,
-               "p90_step_s": statistics.quantiles(window, n=10)[-1] if len(window) >= 10 else None,
+               "p10_step_s": deciles[0], "p90_step_s": deciles[-1],
                "peak_gpu_mib": peak_memory_mib(samples, run["start"], run["end"]),
                "peak_allocated_mib": max(allocated.values(), default=None)}
-        eval_file = run_file.parent / "eval.json"
+        eval_file = folder / "eval.json"
         if eval_file.exists():
-            results = json.loads(eval_file.read_text()).get("results", {})
+            evaluated = json.loads(eval_file.read_text())
+            results = evaluated.get("results", {})
             row["eval"] = {key: results.get(key) for key, _ in EVAL_COLUMNS}
-            row["eval_checkpoint"] = json.loads(eval_file.read_text()).get("checkpoint")
+            row["eval_checkpoint"] = evaluated.get("checkpoint")
         rows.append(row)
     return rows
 

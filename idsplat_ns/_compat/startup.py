@@ -38,16 +38,15 @@ class _GuardFinder(MetaPathFinder):
             if spec is not None and spec.loader is not None:
                 spec.loader = _ThenPatch(spec.loader, speed_up_external_methods)
             return spec
-        if fullname in ("torchvision", "open3d"):
-            self._done.add(fullname)
-            if fullname == "torchvision":
-                from idsplat_ns._compat.torchvision_ops import ensure_importable
+        self._done.add(fullname)
+        if fullname == "torchvision":
+            from idsplat_ns._compat.torchvision_ops import ensure_importable
 
-                ensure_importable()
-            else:
-                from idsplat_ns._compat.libusb import ensure_loadable
+            ensure_importable()
+        else:  # open3d
+            from idsplat_ns._compat.libusb import ensure_loadable
 
-                ensure_loadable()
+            ensure_loadable()
         return None  # let the normal finders import the package
 
 
