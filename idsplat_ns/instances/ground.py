@@ -68,11 +68,14 @@ def cell_keys(xy: np.ndarray, cell: float) -> np.ndarray:  # xy: [N, 2] -> [N] i
     return (ij[:, 0] << 32) + (ij[:, 1] & 0xFFFFFFFF)  # two's complement in the low word
 
 
-def _key_centres(keys: np.ndarray, cell: float) -> np.ndarray:  # keys: [C] -> [C, 2]
+def _key_cells(keys: np.ndarray) -> np.ndarray:  # keys: [C] -> [C, 2] int64 cell indices
     i = keys >> 32
     j = (keys & 0xFFFFFFFF).astype(np.int64)
-    j = np.where(j >= 2**31, j - 2**32, j)
-    return (np.stack([i, j], axis=1).astype(np.float64) + 0.5) * cell
+    return np.stack([i, np.where(j >= 2**31, j - 2**32, j)], axis=1)
+
+
+def _key_centres(keys: np.ndarray, cell: float) -> np.ndarray:  # keys: [C] -> [C, 2]
+    return (_key_cells(keys).astype(np.float64) + 0.5) * cell
 
 
 def _run_bounds(sorted_keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # [M] -> starts [C], ends [C]
@@ -121,9 +124,8 @@ def capped_by_neighbours(keys: np.ndarray, heights: np.ndarray, cell: float, rad
     the road gives its height. ``radius`` 0: unchanged."""
     if radius <= 0 or len(keys) == 0:
         return heights
-    ij = np.round(_key_centres(keys, cell) / cell - 0.5).astype(np.int64)  # [C, 2] cell indices
-    lo = ij.min(0)
-    ij -= lo
+    ij = _key_cells(keys)
+    ij -= ij.min(0)
     grid = np.full(tuple(ij.max(0) + 1), np.inf)
     grid[ij[:, 0], ij[:, 1]] = heights
     r = int(np.ceil(radius / cell))
