@@ -33,6 +33,10 @@ CORRECTIONS = {
     "poses": _corrections(False, False, True),
     "both": _corrections(True, True, False),
     "all": _corrections(True, True, True),
+    # The per-image corrections drawn to their neighbours' interpolation (held-out frames get that).
+    "both-smooth": _corrections(True, True, False) + ["--pipeline.model.exposure-smoothness", "1.0"],
+    "all-smooth": _corrections(True, True, True) + ["--pipeline.model.exposure-smoothness", "1.0",
+                                                    "--pipeline.model.pose-refinement-smoothness", "0.01"],
 }
 # Each defect: the idsplat-synth options that make it, and the suffix they give the street's name.
 DEFECTS = {

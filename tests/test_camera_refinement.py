@@ -223,3 +223,17 @@ def test_the_generator_writes_wandering_camera_poses(tiny_street, tmp_path) -> N
         assert np.linalg.norm(t0 - t1) < 0.1 * rate + 0.002
     assert (tiny_street / "lidar/poses.json").read_text() == (noisy / "lidar/poses.json").read_text()
     assert filecmp.cmp(tiny_street / "camera/front_camera/03.jpg", noisy / "camera/front_camera/03.jpg", shallow=False)
+
+
+def test_pose_smoothness_counts_rotation_and_translation_in_their_units() -> None:
+    """A middle image turned by one expected rotation and moved by one expected translation off its
+    neighbours' line pays 2 (both in units), the same as the identity prior pays for it alone."""
+    poses = ImagePoseCorrection([np.array([0.0, 0.1, 0.3])])
+    with torch.no_grad():
+        poses.rotation[1, 2] = math.radians(0.5)
+        poses.translation[1, 0] = 0.1
+    assert float(poses.smoothness(0.5, 0.1)) == pytest.approx(2.0, rel=1e-5)
+    with torch.no_grad():  # a wander linear in time: nothing to pay
+        poses.rotation.copy_(torch.tensor([[0.0, 0.0, 0.0], [0.0, 0.0, 0.01], [0.0, 0.0, 0.03]]))
+        poses.translation.zero_()
+    assert float(poses.smoothness(0.5, 0.1)) == pytest.approx(0.0, abs=1e-9)

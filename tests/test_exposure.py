@@ -124,3 +124,28 @@ def test_a_run_with_every_sensor_correction_trains_and_reloads(tiny_street, tmp_
     assert set(learned) == set(pipeline.model.camera_names)
     assert learned["front_camera"]["calibration_deg"] == pytest.approx(rig.summary()[0][0])
     assert learned["front_camera"]["image_pose_median_m"] == pytest.approx(poses.summary()[0][1])
+
+
+def test_smoothness_is_the_gap_to_the_neighbours_interpolation() -> None:
+    """Against a loop over each camera's knots: zero for transforms linear in time, whatever the
+    spacing; the square of the offset from the neighbours' line otherwise; no term at the ends."""
+    rng = np.random.default_rng(1)
+    cams = [np.sort(rng.uniform(0, 3, 6)), np.array([0.5, 1.0]), np.sort(rng.uniform(0, 3, 4))]
+    exposure = ImageExposure(cams)
+    with torch.no_grad():  # linear in time per camera: nothing to pay
+        slope, start = torch.randn(3, 3, 4), torch.randn(3, 3, 4)
+        exposure.affine.copy_(torch.cat([start[c] + slope[c] * torch.as_tensor(np.sort(np.unique(t)), dtype=torch.float32)[:, None, None]
+                                         for c, t in enumerate(cams)]))
+    assert float(exposure.smoothness()) == pytest.approx(0.0, abs=1e-10)
+    with torch.no_grad():
+        exposure.affine.normal_()
+    values, times, offset, gaps = exposure.affine.detach().numpy(), exposure.times.numpy(), 0, []
+    for t in cams:
+        for i in range(offset + 1, offset + len(t) - 1):
+            w = (times[i] - times[i - 1]) / (times[i + 1] - times[i - 1])
+            gaps.append(values[i] - ((1 - w) * values[i - 1] + w * values[i + 1]))
+        offset += len(t)
+    assert float(exposure.smoothness()) == pytest.approx(float(np.mean(np.square(gaps))), rel=1e-5)
+    exposure.smoothness().backward()
+    assert exposure.affine.grad[6:8].abs().sum() == 0  # the two-image camera has no middle knot
+    assert float(ImageExposure([np.array([0.1, 0.2])]).smoothness()) == 0.0

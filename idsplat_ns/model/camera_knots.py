@@ -29,6 +29,21 @@ def interpolation_weights(knots: np.ndarray, time: float) -> tuple[int, int, flo
     return j - 1, j, w
 
 
+def interior_knots(per_camera: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """For every knot with a neighbour on both sides in its camera (``per_camera[c]``: sorted knot
+    times): its index, its neighbours' indices (into all cameras' knots, camera by camera) and the
+    weight of the later neighbour in the linear interpolation at its time. Each [M]."""
+    middle, offset = [], 0
+    for times in per_camera:
+        middle.extend(range(offset + 1, offset + len(times) - 1))
+        offset += len(times)
+    middle = np.asarray(middle, dtype=np.int64)
+    times = np.concatenate(list(per_camera)) if len(per_camera) else np.zeros(0)
+    before, after = middle - 1, middle + 1
+    weight = (times[middle] - times[before]) / (times[after] - times[before]) if len(middle) else np.zeros(0)
+    return middle, before, after, weight.astype(np.float32)
+
+
 class CameraKnots(nn.Module):
     """The knots' times, camera by camera; subclasses add one parameter row per knot."""
 
@@ -43,6 +58,11 @@ class CameraKnots(nn.Module):
         self.register_buffer("starts", torch.from_numpy(starts))  # [C + 1] camera c's knots: starts[c]:starts[c+1]
         # Host copies: where a render falls between the knots is decided without reading the device.
         self._host_times, self._host_starts = times, starts
+        middle, before, after, weight = interior_knots(per_camera)
+        # Not saved: a checkpoint's knot times give them back (``like``).
+        for name, value in (("_middle", middle), ("_before", before), ("_after", after)):
+            self.register_buffer(name, torch.from_numpy(value), persistent=False)  # [M] knot indices
+        self.register_buffer("_after_weight", torch.from_numpy(weight), persistent=False)  # [M]
 
     @classmethod
     def like(cls, state_dict: dict, prefix: str):
@@ -79,3 +99,10 @@ class CameraKnots(nn.Module):
         if w == 0.0:
             return values[s + i]
         return (1.0 - w) * values[s + i] + w * values[s + j]
+
+    def interpolation_residual(self, values: Tensor) -> Tensor:  # values: [K, ...] -> [M, ...]
+        """For each knot with a neighbour on both sides in its camera: its value less the linear
+        interpolation of its two neighbours' at its time, the error a held-out frame between two
+        training images makes where the values do not vary smoothly (zero for values linear in time)."""
+        w = self._after_weight.to(values).reshape(-1, *([1] * (values.dim() - 1)))
+        return values[self._middle] - ((1.0 - w) * values[self._before] + w * values[self._after])

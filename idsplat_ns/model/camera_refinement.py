@@ -112,6 +112,14 @@ class ImagePoseCorrection(CameraKnots):
         """Mean over training images of the squared corrections in units of their expected size."""
         return prior_in_units(self.rotation, self.translation, rotation_sigma_deg, translation_sigma_m)
 
+    def smoothness(self, rotation_sigma_deg: float, translation_sigma_m: float) -> Tensor:
+        """Mean over the training images between two others of their camera of how far each
+        correction is from the interpolation of its neighbours' at its time, in units of the
+        expected correction: a pose error that wanders smoothly costs nothing, a correction that
+        absorbs what the scene should fit in one image is drawn back to its neighbours'."""
+        residual = self.interpolation_residual(torch.cat([self.rotation, self.translation], dim=1))
+        return prior_in_units(residual[:, :3], residual[:, 3:], rotation_sigma_deg, translation_sigma_m)
+
     def summary(self) -> list[tuple[float, float]]:
         """Per camera: the median over its training images of (rotation in degrees, translation in
         metres) of their corrections (0, 0 for a camera without training images)."""

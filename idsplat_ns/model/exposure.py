@@ -3,7 +3,8 @@
 Auto-exposure changes an image's brightness from frame to frame (gains of 0.7-1.3 are ordinary),
 which no per-camera term can absorb. Each training image gets an affine colour transform
 ``rgb' = (I + A) rgb + b`` (``A`` [3, 3], ``b`` [3]; 12 numbers, zero at the start: identity),
-learned with the scene and kept near identity by a prior (:meth:`ImageExposure.prior`). Any other
+learned with the scene and kept near identity by a prior (:meth:`ImageExposure.prior`) and,
+optionally, near its neighbours in time (:meth:`ImageExposure.smoothness`). Any other
 time of the same camera takes the transform interpolated in time
 (:class:`~idsplat_ns.model.camera_knots.CameraKnots`); a camera without training images is left as
 rendered. DriveStudio and OmniRe fit such an affine per image.
@@ -42,3 +43,11 @@ class ImageExposure(CameraKnots):
     def prior(self) -> Tensor:
         """Mean square of the transforms' offsets from identity (a scalar to add to the loss)."""
         return self.affine.square().mean() if self.affine.numel() else self.affine.sum()
+
+    def smoothness(self) -> Tensor:
+        """Mean square of each transform's offset from the interpolation of its camera's neighbours
+        at its time (a scalar to add to the loss): a gain that drifts smoothly over the drive costs
+        nothing, one image's transform that fits what the scene should is drawn back to its
+        neighbours', and so is what a held-out frame between them is given."""
+        residual = self.interpolation_residual(self.affine)
+        return residual.square().mean() if residual.numel() else self.affine.sum() * 0.0

@@ -52,7 +52,7 @@ from idsplat_ns.nerfstudio.camera_read import HostCamera, read_camera
 from idsplat_ns.nerfstudio.render_guard import check_render_tools
 from idsplat_ns.nerfstudio.viewer_controls import InstanceControls, in_viewer_render
 from idsplat_ns.nerfstudio.viewer_scene import start_view
-from idsplat_ns.ranges import POSITIVE, UNIT, bounded
+from idsplat_ns.ranges import NON_NEGATIVE, POSITIVE, UNIT, bounded
 
 CONSOLE = Console()
 GAUSSIAN_GROUPS = GaussianSet.PARAM_NAMES
@@ -119,6 +119,8 @@ class IDSplatModelConfig(ModelConfig):
     regains most of what a drift of gains 0.7-1.3 costs (docs/model.md). False: the paper's model."""
     exposure_prior: float = 0.1
     """Weight of the prior that keeps each image's colour transform near identity."""
+    exposure_smoothness: float = bounded(0.0, NON_NEGATIVE)
+    """Weight of the prior that keeps each image's colour transform near its camera's neighbours' interpolated; 0: none."""
     camera_refinement: bool = True
     """Refine each camera's calibration: a rotation and translation per camera, in its own frame,
     for all its images (:mod:`idsplat_ns.model.camera_refinement`; not in the paper). On: on unseen
@@ -131,6 +133,8 @@ class IDSplatModelConfig(ModelConfig):
     frame, interpolated in time for the camera's other frames (:mod:`idsplat_ns.model.camera_refinement`)."""
     pose_refinement_prior: Tuple[float, float, float] = bounded((1e-3, 0.5, 0.1), POSITIVE)
     """Weight of the per-image pose prior, and the correction it expects: degrees, metres."""
+    pose_refinement_smoothness: float = bounded(0.0, NON_NEGATIVE)
+    """As ``exposure_smoothness``, for each image's pose correction (units of ``pose_refinement_prior``)."""
     camera_backend: Literal["auto", "gsplat", "torch"] = "auto"
     """Camera rasterizer: ``auto`` (gsplat on CUDA where it is installed, else the pure-torch tile
     rasterizer), ``gsplat`` (CUDA only; compiled on first use, minutes) or ``torch`` (any device:
@@ -433,12 +437,16 @@ class IDSplatModel(Model):
             losses.update(self.lidar.losses(outputs))
         if self.exposure is not None and self.training:
             losses["exposure_prior"] = self.config.exposure_prior * self.exposure.prior()
+            if (smooth := self.config.exposure_smoothness) > 0:
+                losses["exposure_smoothness"] = smooth * self.exposure.smoothness()
         if self.rig_correction is not None and self.training:
             weight, degrees, metres = self.config.camera_refinement_prior
             losses["camera_refinement_prior"] = weight * self.rig_correction.prior(degrees, metres)
         if self.pose_correction is not None and self.training:
             weight, degrees, metres = self.config.pose_refinement_prior
             losses["pose_refinement_prior"] = weight * self.pose_correction.prior(degrees, metres)
+            if (smooth := self.config.pose_refinement_smoothness) > 0:
+                losses["pose_refinement_smoothness"] = smooth * self.pose_correction.smoothness(degrees, metres)
         return losses
 
     def get_image_metrics_and_images(self, outputs, batch) -> Tuple[Dict[str, float], Dict[str, Tensor]]:
