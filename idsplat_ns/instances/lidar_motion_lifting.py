@@ -9,6 +9,8 @@ first image of that frame it lands in (its pixel is where registration reads col
 features), and points no camera sees are dropped, as painting would drop them; each observation
 records the share of its cluster that was kept (``seen_fraction``): a vehicle passing beside the
 ego is cut by the cameras' field of view, and registration must not take the cut for its end.
+Every cluster is also kept whole (``LiftedInstances.lidar_views``): out of the cameras' view, the
+instance is carried on from its lidar alone (out_of_view.py).
 """
 
 from __future__ import annotations
@@ -43,6 +45,7 @@ def lift_track_points(scene: Scene, mask_dir: Path, labels: dict[int, str], conf
             images_of_frame[int(sweep.frame_index)].append(i)
     paths = camera_paths(scene.images) if config.rolling_shutter else {}
     observations: dict[int, list[InstanceObservation]] = {}
+    views: dict[int, dict[int, np.ndarray]] = {}
     for key, frames in tqdm(index.items(), desc="lidar motion: lifting", disable=not progress):
         tid = int(key)
         obs = []
@@ -62,6 +65,9 @@ def lift_track_points(scene: Scene, mask_dir: Path, labels: dict[int, str], conf
             if seen.sum() >= config.min_points:
                 obs.append(InstanceObservation(position[f], pts[seen], image_ids[seen], uv[seen], times[seen].astype(np.float64),
                                                seen_fraction=float(seen.mean())))
+            if len(pts) >= config.min_points:
+                views.setdefault(tid, {})[position[f]] = np.asarray(pts, np.float64)
         if obs:
             observations[tid] = sorted(obs, key=lambda o: o.frame)
-    return LiftedInstances({k: labels.get(k, "object") for k in observations}, observations)
+    return LiftedInstances({k: labels.get(k, "object") for k in observations}, observations,
+                           {k: v for k, v in views.items() if k in observations})

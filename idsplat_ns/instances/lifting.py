@@ -18,7 +18,7 @@ registration.
 from __future__ import annotations
 
 from collections import Counter, defaultdict
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Optional
 
@@ -91,12 +91,21 @@ class LiftedInstances:
     """Class of each instance ID."""
     observations: dict[int, list[InstanceObservation]]
     """Observations per instance ID."""
+    lidar_views: dict[int, dict[int, np.ndarray]] = field(default_factory=dict)
+    """Per instance ID, frame (position in ``scene.frame_indices``) -> [N, 3] world points of all
+    the instance's lidar returns at every frame the lidar saw it, whether a camera saw them or
+    not (known for lidar-motion instances; :mod:`idsplat_ns.instances.out_of_view` poses the
+    instance where no camera did)."""
 
     def save(self, path: Path) -> None:
         arrays: dict[str, np.ndarray] = {}
         index = {}
         for iid, obs_list in self.observations.items():
-            index[str(iid)] = {"label": self.labels[iid], "frames": [o.frame for o in obs_list]}
+            views = self.lidar_views.get(iid, {})
+            index[str(iid)] = {"label": self.labels[iid], "frames": [o.frame for o in obs_list],
+                               "lidar_view_frames": sorted(int(f) for f in views)}
+            for f, points in views.items():
+                arrays[f"{iid}_{f}_lidar_view"] = points
             for o in obs_list:
                 arrays[f"{iid}_{o.frame}_points"] = o.points
                 arrays[f"{iid}_{o.frame}_image_ids"] = o.image_ids
@@ -110,7 +119,7 @@ class LiftedInstances:
     @classmethod
     def load(cls, path: Path) -> "LiftedInstances":
         data, index = load_npz(path)
-        labels, observations = {}, {}
+        labels, observations, views = {}, {}, {}
         for key, entry in index.items():
             iid = int(key)
             labels[iid] = entry["label"]
@@ -119,7 +128,9 @@ class LiftedInstances:
                                     data.get(f"{iid}_{f}_times"), _optional_float(data.get(f"{iid}_{f}_seen_fraction")))
                 for f in entry["frames"]
             ]
-        return cls(labels, observations)
+            if entry.get("lidar_view_frames"):
+                views[iid] = {int(f): data[f"{iid}_{f}_lidar_view"] for f in entry["lidar_view_frames"]}
+        return cls(labels, observations, views)
 
 
 def _optional_float(value) -> Optional[float]:

@@ -38,8 +38,8 @@ from idsplat_ns.instances.tracks import InstanceTracks
 # Bumped when what the registration stage stores changes (2: per-point origin frames; 3: ray times).
 TRACKS_FORMAT = 3
 # Bumped when what the lifting stage stores changes (2: per-point ray times; 3: the share of a
-# lidar-motion cluster the cameras see).
-LIFTING_FORMAT = 3
+# lidar-motion cluster the cameras see; 4: the clusters the cameras do not see).
+LIFTING_FORMAT = 4
 # Bumped when the registration gives other results for the same settings, so that a cache made by
 # older code is not reused (2: ICP linearised about the pairs' centroid; 3: heading turns about the
 # amodal centre, parked instances not turned; 5: segments linked along the box's axis, not the
@@ -48,8 +48,8 @@ LIFTING_FORMAT = 3
 # which moves some borderline fitness decisions; 9: beside a single registered frame the chain
 # predicts with the observations' centroid velocity, its gate grows with the extrapolation, and
 # the reference frame may be a motion outlier too; 11: long vehicles' views the cameras cut are left
-# to the chain first).
-REGISTRATION_VERSION = 11
+# to the chain first; 12: tracks carried through the frames only the lidar saw).
+REGISTRATION_VERSION = 12
 # The same for the smoothing stage (2: translations not measured by a frame's surfaces; 3: tilt and
 # vertical motion sigmas; 4: one-sided faces left to the motion; 5: heading prior and vertical cap;
 # 6: turning curvature; 7: lidar ground under the vehicles, sparse views left to the motion).

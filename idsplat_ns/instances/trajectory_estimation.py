@@ -6,12 +6,14 @@ axis-aligned box of its points at the frame with the most points, with identity 
 other frames, in decreasing order of point count, are registered against the growing canonical
 point set, and our passes follow. Observations no registration reached are then registered among
 themselves and linked back through the vehicle's box (segment_linking.py), or become an instance
-of their own.
+of their own. Last, the track is carried through the frames where only the lidar saw it
+(out_of_view.py).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
 from typing import Optional
 
 import numpy as np
@@ -19,6 +21,7 @@ import numpy as np
 from idsplat_ns.data.scene import Scene
 from idsplat_ns.instances.features.base import PointFeatures
 from idsplat_ns.instances.lifting import InstanceObservation, LiftedInstances
+from idsplat_ns.instances.out_of_view import extend_out_of_view
 from idsplat_ns.instances.process_pool import REGISTRATION_MIN_OBSERVATIONS, map_instances, resolve_workers
 from idsplat_ns.instances.segment_linking import link_segment
 from idsplat_ns.instances.track_builder import TrackBuilder
@@ -66,6 +69,7 @@ class _InstanceJob:
     label: str
     observations: list[InstanceObservation]
     features: Optional[PointFeatures]  # this instance's only
+    lidar_views: Mapping[int, np.ndarray] = field(default_factory=dict)  # frame -> [N, 3] world: all its lidar points
 
 
 def _instance_tracks(scene: _SceneInputs, job: _InstanceJob) -> tuple[InstanceTrack, list[InstanceTrack], list[int]]:
@@ -93,6 +97,9 @@ def _instance_tracks(scene: _SceneInputs, job: _InstanceJob) -> tuple[InstanceTr
             linked_frames.append(int(segment.num_valid))
             continue
         segments.append(segment)
+    if config.method == "registration" and config.chain_neighbours > 0:
+        track = extend_out_of_view(track, job.lidar_views, scene.times, config.registration, config.out_of_view_frames,
+                                   config.chain_neighbours, config.chain_max_gap, config.chain_max_deviation, scene.sensors)
     return track, segments, linked_frames
 
 
@@ -111,8 +118,8 @@ def estimate_trajectories(
              if obs and max(len(o.points) for o in obs) >= config.min_points]
     times = np.asarray(scene.frame_times, np.float64)
     sensors = scene.lidar_positions() if getattr(scene, "lidar", None) else None  # [F, 3]
-    jobs = [_InstanceJob(iid, lifted.labels[iid], obs, None if features is None else features.of_instance(iid))
-            for iid, obs in items]
+    jobs = [_InstanceJob(iid, lifted.labels[iid], obs, None if features is None else features.of_instance(iid),
+                         lifted.lidar_views.get(iid, {})) for iid, obs in items]
     workers = resolve_workers(workers, len(jobs), sum(len(obs) for _, obs in items), REGISTRATION_MIN_OBSERVATIONS)
     # Largest first by points, not frames: a truck's 68 views of 7,000 points took 86 s of a
     # segment's 179, while 200 views of a car took 14 s.
