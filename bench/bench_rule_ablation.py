@@ -134,8 +134,8 @@ RULES = [
          "unregistered observations that register together (>= 3 frames) form a segment (and are linked back)"),
     Rule("no-segment-link", "registration", "trajectory.link_segments.enabled", False,
          "split segments joined back to their instance through the vehicle's box"),
-    Rule("no-out-of-view", "registration", "trajectory.out_of_view_frames", 0,
-         "the track carried through the frames where only the lidar saw the instance (lidar-motion instances)"),
+    Rule("with-out-of-view", "registration", "trajectory.out_of_view_frames", 20,
+         "a vehicle's track carried through the frames where only the lidar saw it (off by default)", default_on=False),
     # Lifting (new lifting, features and registration per street).
     Rule("full-erosion", "lifting", "lifting.min_kept_area", 0.0,
          "masks eroded less where 3 px would remove more than half of a small mask"),

@@ -1,11 +1,12 @@
 """Instances carried through the frames only the lidar saw (instances/out_of_view.py): a car
 overtaking the ego, seen by the lidar from behind and by the cameras only once beside it, gets its
 true poses over the frames before; a view that is not the car, a gap too long in time or the
-frame limit ends the extension; the lidar views survive the lifting cache; and the whole
-registration stage poses such frames only when asked."""
+frame limit ends the extension, and people are never carried; the lidar views survive the
+lifting cache; and the whole registration stage poses such frames only when asked."""
 
 from __future__ import annotations
 
+from dataclasses import replace
 from types import SimpleNamespace
 
 import numpy as np
@@ -79,6 +80,8 @@ def test_the_extension_stops_at_a_view_that_is_not_the_car_and_at_the_limits() -
     gappy = np.concatenate([times[:9], times[9:] + 2.0])  # frame 8 two seconds before 9
     assert np.flatnonzero(extend_out_of_view(track, views, gappy, RegistrationConfig(), 20, max_gap=1.0).valid).tolist() == list(range(9, 14))
     assert extend_out_of_view(track, views, times, RegistrationConfig(), max_frames=0) is track
+    walker = replace(track, label="pedestrian")  # a walker's cluster changes shape: never carried
+    assert extend_out_of_view(walker, views, times, RegistrationConfig(), max_frames=20) is walker
     missing = {f: v for f, v in views.items() if f != 8}  # no lidar view: the extension ends there
     assert np.flatnonzero(extend_out_of_view(track, missing, times, RegistrationConfig(), 20).valid).tolist() == list(range(9, 14))
 
@@ -99,9 +102,9 @@ def test_lidar_views_survive_the_lifting_cache(tmp_path) -> None:
     assert LiftedInstances({4: "car"}, {4: [obs]}).lidar_views == {}
 
 
-def test_registration_carries_the_track_by_default_and_not_when_switched_off() -> None:
+def test_registration_carries_the_track_only_when_asked() -> None:
     """The whole stage: camera observations (with features) at frames 10-13 only, lidar views at
-    every frame; by default the frames before are posed, with ``out_of_view_frames=0`` not."""
+    every frame; with ``out_of_view_frames`` the frames before are posed, by default not."""
     poses, views, body = _overtaking()
     rng = np.random.default_rng(5)
     observations, features = [], {}
@@ -112,10 +115,10 @@ def test_registration_carries_the_track_by_default_and_not_when_switched_off() -
         features[(7, f)] = body_features(local)
     scene = SimpleNamespace(num_frames=14, frame_times=np.arange(14) * DT, frame_indices=np.arange(14))
     lifted = LiftedInstances({7: "car"}, {7: observations}, {7: views})
-    plain = estimate_trajectories(scene, lifted, PointFeatures("test", features, {}), TrajectoryConfig(out_of_view_frames=0),
-                                  progress=False)
+    plain = estimate_trajectories(scene, lifted, PointFeatures("test", features, {}), TrajectoryConfig(), progress=False)
     assert np.flatnonzero(plain.instances[0].valid).tolist() == [10, 11, 12, 13]
-    asked = estimate_trajectories(scene, lifted, PointFeatures("test", features, {}), TrajectoryConfig(), progress=False)
+    asked = estimate_trajectories(scene, lifted, PointFeatures("test", features, {}), TrajectoryConfig(out_of_view_frames=20),
+                                  progress=False)
     (track,) = asked.instances
     assert track.valid.all()
     # Poses are canonical-to-world: compare the motion from frame 10, as pose errors are measured.

@@ -10,13 +10,13 @@ lidar losses find no one for its points, and those points seed static Gaussians 
 Out of the cameras' view there are no features, so each such frame, outwards from the track's
 ends one at a time, takes the pose of the nearest posed frame moved by the shift of the lidar
 view's centroid, refined by point-to-plane ICP onto its lidar points (as the chain's motion prior
-does), and is
-accepted when the refined pose stays within the chain's gate of the prediction, is upright, and
-explains at least the registration fitness threshold of the frame's points. What they are fitted
+does), and is accepted when the refined pose stays within the chain's gate of the prediction, is
+upright, and explains at least the registration fitness threshold of the frame's points. What they are fitted
 to is the lidar's whole view of the instance at the nearest posed frames, mapped by their poses,
 not the canonical points: a car leaving shows its back, which no camera saw but the lidar did a
 frame before. The first frame that fails ends the extension on that side. The lidar points of the
-frames carried never join the instance's canonical points: no camera gave them a colour.
+frames carried never join the instance's canonical points: no camera gave them a colour. Only
+vehicles are carried: a walker's cluster changes shape from step to step.
 """
 
 from __future__ import annotations
@@ -52,8 +52,10 @@ def extend_out_of_view(
     sensors: Optional[np.ndarray] = None,  # [F, 3] world: where the lidar was at each frame
 ) -> InstanceTrack:
     """``track`` with up to ``max_frames`` frames of ``lidar_views`` posed past each end (see the
-    module docstring); frames ``max_gap`` seconds or more from the last posed one are not reached."""
-    if max_frames <= 0 or not lidar_views or track.num_valid == 0:
+    module docstring); frames ``max_gap`` seconds or more from the last posed one are not reached.
+    Vehicles only: a walker's or rider's cluster changes shape with every step, so a rigid fit
+    to the frame before carries no pose."""
+    if max_frames <= 0 or not lidar_views or track.num_valid == 0 or track.category != "vehicle":
         return track
     poses, valid = track.poses.copy(), track.valid.copy()
     fitness, counts = track.fitness.copy(), track.point_counts.copy()

@@ -48,8 +48,8 @@ LIFTING_FORMAT = 4
 # which moves some borderline fitness decisions; 9: beside a single registered frame the chain
 # predicts with the observations' centroid velocity, its gate grows with the extrapolation, and
 # the reference frame may be a motion outlier too; 11: long vehicles' views the cameras cut are left
-# to the chain first; 12: tracks carried through the frames only the lidar saw).
-REGISTRATION_VERSION = 12
+# to the chain first; 12: tracks carried through the frames only the lidar saw; 13: vehicles only).
+REGISTRATION_VERSION = 13
 # The same for the smoothing stage (2: translations not measured by a frame's surfaces; 3: tilt and
 # vertical motion sigmas; 4: one-sided faces left to the motion; 5: heading prior and vertical cap;
 # 6: turning curvature; 7: lidar ground under the vehicles, sparse views left to the motion).
