@@ -118,8 +118,10 @@ def estimate_trajectories(
              if obs and max(len(o.points) for o in obs) >= config.min_points]
     times = np.asarray(scene.frame_times, np.float64)
     sensors = scene.lidar_positions() if getattr(scene, "lidar", None) else None  # [F, 3]
+    # The whole lidar views only where they are read: a segment's are hundreds of megabytes to send to workers.
+    views = lifted.lidar_views if config.out_of_view_frames > 0 else {}
     jobs = [_InstanceJob(iid, lifted.labels[iid], obs, None if features is None else features.of_instance(iid),
-                         lifted.lidar_views.get(iid, {})) for iid, obs in items]
+                         views.get(iid, {})) for iid, obs in items]
     workers = resolve_workers(workers, len(jobs), sum(len(obs) for _, obs in items), REGISTRATION_MIN_OBSERVATIONS)
     # Largest first by points, not frames: a truck's 68 views of 7,000 points took 86 s of a
     # segment's 179, while 200 views of a car took 14 s.
