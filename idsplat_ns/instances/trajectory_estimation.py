@@ -118,7 +118,7 @@ def estimate_trajectories(
              if obs and max(len(o.points) for o in obs) >= config.min_points]
     times = np.asarray(scene.frame_times, np.float64)
     sensors = scene.lidar_positions() if getattr(scene, "lidar", None) else None  # [F, 3]
-    # The whole lidar views only where they are read: a segment's are hundreds of megabytes to send to workers.
+    # The whole lidar views only where they are read: every cluster of every frame, pickled to each worker.
     views = lifted.lidar_views if config.out_of_view_frames > 0 else {}
     jobs = [_InstanceJob(iid, lifted.labels[iid], obs, None if features is None else features.of_instance(iid),
                          views.get(iid, {})) for iid, obs in items]
