@@ -60,6 +60,8 @@ def extend_out_of_view(
     poses, valid = track.poses.copy(), track.valid.copy()
     fitness, counts = track.fitness.copy(), track.point_counts.copy()
     extended = False
+    has_view = np.zeros(len(valid), bool)
+    has_view[[f for f in lidar_views if 0 <= f < len(valid)]] = True
     for step in (1, -1):
         posed = np.flatnonzero(valid)
         edge = int(posed[-1] if step > 0 else posed[0])
@@ -68,7 +70,7 @@ def extend_out_of_view(
             target = lidar_views.get(frame)
             if target is None or not 0 <= frame < len(valid) or valid[frame] or abs(times[frame] - times[edge]) >= max_gap:
                 break
-            near = [f for f in nearest_posed(valid, times, frame, len(valid)) if f in lidar_views][:neighbours]
+            near = nearest_posed(valid & has_view, times, frame, neighbours)
             if not near:
                 break
             source = np.concatenate([transform_points(invert_pose(poses[f]), lidar_views[f]) for f in near])
