@@ -29,16 +29,11 @@ def interpolation_weights(knots: np.ndarray, time: float) -> tuple[int, int, flo
     return j - 1, j, w
 
 
-def interior_knots(per_camera: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """For every knot with a neighbour on both sides in its camera (``per_camera[c]``: sorted knot
-    times): its index, its neighbours' indices (into all cameras' knots, camera by camera) and the
-    weight of the later neighbour in the linear interpolation at its time. Each [M]."""
-    middle, offset = [], 0
-    for times in per_camera:
-        middle.extend(range(offset + 1, offset + len(times) - 1))
-        offset += len(times)
-    middle = np.asarray(middle, dtype=np.int64)
-    times = np.concatenate(list(per_camera)) if len(per_camera) else np.zeros(0)
+def interior_knots(times: np.ndarray, starts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """For every knot with a neighbour on both sides in its camera (``times`` [K]: all cameras'
+    sorted knot times, camera ``c``'s at ``starts[c]:starts[c + 1]``): its index, its neighbours'
+    indices and the weight of the later neighbour in the linear interpolation at its time. Each [M]."""
+    middle = np.concatenate([np.arange(s + 1, e - 1) for s, e in zip(starts[:-1], starts[1:])] + [np.zeros(0)]).astype(np.int64)
     before, after = middle - 1, middle + 1
     weight = (times[middle] - times[before]) / (times[after] - times[before]) if len(middle) else np.zeros(0)
     return middle, before, after, weight.astype(np.float32)
@@ -58,7 +53,7 @@ class CameraKnots(nn.Module):
         self.register_buffer("starts", torch.from_numpy(starts))  # [C + 1] camera c's knots: starts[c]:starts[c+1]
         # Host copies: where a render falls between the knots is decided without reading the device.
         self._host_times, self._host_starts = times, starts
-        middle, before, after, weight = interior_knots(per_camera)
+        middle, before, after, weight = interior_knots(times, starts)
         # Not saved: a checkpoint's knot times give them back (``like``).
         for name, value in (("_middle", middle), ("_before", before), ("_after", after)):
             self.register_buffer(name, torch.from_numpy(value), persistent=False)  # [M] knot indices
