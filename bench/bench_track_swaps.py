@@ -2,7 +2,7 @@
 the frames the instances exist in. Each built-in street is trained (``ns-train idsplat-fast``, then
 ``ns-eval``) four ways:
 
-- ``self-supervised``: the tracks ``idsplat-preprocess --export`` writes, read back through
+- ``self-supervised``: the tracks ns-train builds (``idsplat-preprocess --export``'s), read back through
   ``--pipeline.datamanager.import-tracks`` (the same instances ns-train would build);
 - ``true-poses``: the same instances (their canonical points, their frames) moved as the annotated
   box that holds most of their points moves;
@@ -26,14 +26,14 @@ from pathlib import Path
 
 import numpy as np
 
-from idsplat_ns.cli.preprocess import PreprocessArgs, preprocess
 from idsplat_ns.data.geometry import invert_pose
 from idsplat_ns.data.split import split_frames
 from idsplat_ns.eval.instance_pose_errors import match_instance
+from idsplat_ns.instances.modes import instance_tracks_for_mode
 from idsplat_ns.instances.runner import PreprocessConfig
 from idsplat_ns.instances.tracks import InstanceTracks, fill_invalid_poses
 from idsplat_ns.instances.tracks_json import write_tracks_json
-from idsplat_ns.nerfstudio.builtin_scene import builtin_street
+from idsplat_ns.nerfstudio.builtin_scene import builtin_street, instance_cache_dir
 from idsplat_ns.nerfstudio.dataparser import AutoDataParserConfig
 
 from bench.bench_modes import train_and_evaluate
@@ -84,11 +84,13 @@ def write_variants(preset: str, seed: int, work: Path, config: PreprocessConfig)
     files = {v: folder / f"{v}.json" for v in VARIANTS[:3]}
     if all(p.is_file() for p in files.values()):
         return files
-    tracks = preprocess(PreprocessArgs(data=street, preprocess=config))
+    # As idsplat-preprocess (and ns-train) does it, on the street loaded once.
     parser = AutoDataParserConfig(data=street).resolved()
     scene = parser.load_scene()
     train_idx, _ = split_frames(scene.num_frames, parser.train_fraction, parser.eval_every)
-    train = scene.subset(set(scene.frame_indices[train_idx].tolist()))
+    frames = set(scene.frame_indices[train_idx].tolist())
+    train = scene.subset(frames)
+    tracks = instance_tracks_for_mode(scene, "self-supervised", frames, config, instance_cache_dir(scene.name))
     for variant, tracks_of in (("self-supervised", tracks), ("true-poses", with_true_motion(tracks, train, False)),
                                ("true-spans", with_true_motion(tracks, train, True))):
         write_tracks_json(files[variant], tracks_of, train)
