@@ -38,7 +38,7 @@ from idsplat_ns.instances.tracks import InstanceTracks
 # Bumped when what the registration stage stores changes (2: per-point origin frames; 3: ray times).
 TRACKS_FORMAT = 3
 # Bumped when what the lifting stage stores changes (2: per-point ray times; 3: the share of a
-# lidar-motion cluster the cameras see; 4: the clusters the cameras do not see).
+# lidar-motion cluster the cameras see; 4: every lidar-motion cluster whole, seen or not).
 LIFTING_FORMAT = 4
 # Bumped when the registration gives other results for the same settings, so that a cache made by
 # older code is not reused (2: ICP linearised about the pairs' centroid; 3: heading turns about the
