@@ -1,8 +1,8 @@
 """Instances carried through the frames only the lidar saw (instances/out_of_view.py): a car
 overtaking the ego, seen by the lidar from behind and by the cameras only once beside it, gets its
 true poses over the frames before; a view that is not the car, a gap too long in time or the
-frame limit ends the extension, and people are never carried; the lidar views survive the
-lifting cache; and the whole registration stage poses such frames only when asked."""
+frame limit ends the extension, and people are never carried; the lidar views are read whole
+from the mask folder; and the whole registration stage poses such frames only when asked."""
 
 from __future__ import annotations
 
@@ -14,7 +14,10 @@ import numpy as np
 from _instances_fixtures import CAR_SIZE, body_features, box_surface, visible_from
 from idsplat_ns.data.geometry import make_pose, rot_z, transform_points
 from idsplat_ns.instances.features.base import PointFeatures
+from idsplat_ns.instances.lidar_motion_lifting import load_lidar_views
 from idsplat_ns.instances.lifting import InstanceObservation, LiftedInstances
+from idsplat_ns.instances.masks.lidar_motion import save_track_points
+from idsplat_ns.instances.motion_tracks import MotionCluster, MotionTrack
 from idsplat_ns.instances.out_of_view import extend_out_of_view, nearest_posed
 from idsplat_ns.instances.registration import RegistrationConfig
 from idsplat_ns.instances.tracks import InstanceTrack
@@ -92,14 +95,18 @@ def test_nearest_posed_frames_in_time() -> None:
     assert nearest_posed(valid, np.arange(5.0), 0, 5) == [1, 2, 4]
 
 
-def test_lidar_views_survive_the_lifting_cache(tmp_path) -> None:
-    obs = InstanceObservation(2, np.ones((3, 3)), np.zeros(3, np.int32), np.zeros((3, 2), np.float32))
-    views = {0: np.arange(12.0).reshape(4, 3), 2: np.ones((3, 3))}
-    LiftedInstances({4: "car"}, {4: [obs]}, {4: views}).save(tmp_path / "lifted.npz")
-    again = LiftedInstances.load(tmp_path / "lifted.npz")
-    assert sorted(again.lidar_views[4]) == [0, 2]
-    assert np.array_equal(again.lidar_views[4][0], views[0])
-    assert LiftedInstances({4: "car"}, {4: [obs]}).lidar_views == {}
+def test_lidar_views_read_whole_from_the_mask_folder(tmp_path) -> None:
+    """Every cluster of an asked instance with enough returns, at its frame's position, whether a
+    camera saw it or not; other instances and clusters too small are left out."""
+    car = MotionTrack(4, [MotionCluster(0, np.arange(30.0).reshape(10, 3), np.zeros(10)),
+                          MotionCluster(1, np.ones((2, 3)), np.zeros(2)),  # too few returns
+                          MotionCluster(2, np.full((6, 3), 2.0), np.zeros(6))])
+    other = MotionTrack(9, [MotionCluster(0, np.zeros((8, 3)), np.zeros(8))])
+    save_track_points(tmp_path, [car, other], sweep_frame_indices=[10, 11, 12])
+    scene = SimpleNamespace(frame_indices=np.array([10, 11, 12]))
+    views = load_lidar_views(scene, tmp_path, [4], min_points=5)
+    assert list(views) == [4] and sorted(views[4]) == [0, 2]
+    assert np.array_equal(views[4][0], np.arange(30.0).reshape(10, 3))
 
 
 def test_registration_carries_the_track_only_when_asked() -> None:
@@ -114,11 +121,12 @@ def test_registration_carries_the_track_only_when_asked() -> None:
                                                 np.zeros((len(local), 2), np.float32), seen_fraction=1.0))
         features[(7, f)] = body_features(local)
     scene = SimpleNamespace(num_frames=14, frame_times=np.arange(14) * DT, frame_indices=np.arange(14))
-    lifted = LiftedInstances({7: "car"}, {7: observations}, {7: views})
-    plain = estimate_trajectories(scene, lifted, PointFeatures("test", features, {}), TrajectoryConfig(), progress=False)
+    lifted = LiftedInstances({7: "car"}, {7: observations})
+    plain = estimate_trajectories(scene, lifted, PointFeatures("test", features, {}), TrajectoryConfig(), progress=False,
+                                  lidar_views={7: views})
     assert np.flatnonzero(plain.instances[0].valid).tolist() == [10, 11, 12, 13]
     asked = estimate_trajectories(scene, lifted, PointFeatures("test", features, {}), TrajectoryConfig(out_of_view_frames=20),
-                                  progress=False)
+                                  progress=False, lidar_views={7: views})
     (track,) = asked.instances
     assert track.valid.all()
     # Poses are canonical-to-world: compare the motion from frame 10, as pose errors are measured.

@@ -9,14 +9,15 @@ first image of that frame it lands in (its pixel is where registration reads col
 features), and points no camera sees are dropped, as painting would drop them; each observation
 records the share of its cluster that was kept (``seen_fraction``): a vehicle passing beside the
 ego is cut by the cameras' field of view, and registration must not take the cut for its end.
-Every cluster is also kept whole (``LiftedInstances.lidar_views``): out of the cameras' view, the
-instance is carried on from its lidar alone (out_of_view.py).
+The clusters whole, seen or not, are read from the same file by :func:`load_lidar_views` when
+registration carries an instance on out of the cameras' view from its lidar alone (out_of_view.py).
 """
 
 from __future__ import annotations
 
 from collections import defaultdict
 from pathlib import Path
+from typing import Iterable
 
 import numpy as np
 from tqdm import tqdm
@@ -45,7 +46,6 @@ def lift_track_points(scene: Scene, mask_dir: Path, labels: dict[int, str], conf
             images_of_frame[int(sweep.frame_index)].append(i)
     paths = camera_paths(scene.images) if config.rolling_shutter else {}
     observations: dict[int, list[InstanceObservation]] = {}
-    views: dict[int, dict[int, np.ndarray]] = {}
     for key, frames in tqdm(index.items(), desc="lidar motion: lifting", disable=not progress):
         tid = int(key)
         obs = []
@@ -65,9 +65,28 @@ def lift_track_points(scene: Scene, mask_dir: Path, labels: dict[int, str], conf
             if seen.sum() >= config.min_points:
                 obs.append(InstanceObservation(position[f], pts[seen], image_ids[seen], uv[seen], times[seen].astype(np.float64),
                                                seen_fraction=float(seen.mean())))
-            if len(pts) >= config.min_points:
-                views.setdefault(tid, {})[position[f]] = np.asarray(pts, np.float64)
         if obs:
             observations[tid] = sorted(obs, key=lambda o: o.frame)
-    return LiftedInstances({k: labels.get(k, "object") for k in observations}, observations,
-                           {k: v for k, v in views.items() if k in observations})
+    return LiftedInstances({k: labels.get(k, "object") for k in observations}, observations)
+
+
+def load_lidar_views(scene: Scene, mask_dir: Path, instance_ids: Iterable[int],
+                     min_points: int) -> dict[int, dict[int, np.ndarray]]:
+    """Per instance of ``instance_ids``, frame (position in ``scene.frame_indices``) -> [N, 3]
+    world points: every cluster of at least ``min_points`` returns that ``mask_dir``'s
+    :data:`TRACK_POINTS` holds, whether a camera saw it or not."""
+    path = Path(mask_dir) / TRACK_POINTS
+    if not path.is_file():
+        raise IDSplatError(f"{path}: missing; delete {mask_dir} so that the lidar-motion masks are made again")
+    data, index = load_npz(path)
+    position = {int(f): k for k, f in enumerate(scene.frame_indices)}
+    wanted = {int(i) for i in instance_ids}
+    views: dict[int, dict[int, np.ndarray]] = {}
+    for key, frames in index.items():
+        if int(key) not in wanted:
+            continue
+        for f in frames:
+            pts = data[f"{key}_{f}_points"]
+            if f in position and len(pts) >= min_points:
+                views.setdefault(int(key), {})[position[f]] = np.asarray(pts, np.float64)
+    return views

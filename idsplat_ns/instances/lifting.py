@@ -18,7 +18,7 @@ registration.
 from __future__ import annotations
 
 from collections import Counter, defaultdict
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional
 
@@ -91,21 +91,12 @@ class LiftedInstances:
     """Class of each instance ID."""
     observations: dict[int, list[InstanceObservation]]
     """Observations per instance ID."""
-    lidar_views: dict[int, dict[int, np.ndarray]] = field(default_factory=dict)
-    """Per instance ID, frame (position in ``scene.frame_indices``) -> [N, 3] world points of all
-    the instance's lidar returns at every frame the lidar saw it, whether a camera saw them or
-    not (known for lidar-motion instances; :mod:`idsplat_ns.instances.out_of_view` poses the
-    instance where no camera did)."""
 
     def save(self, path: Path) -> None:
         arrays: dict[str, np.ndarray] = {}
         index = {}
         for iid, obs_list in self.observations.items():
-            views = self.lidar_views.get(iid, {})
-            index[str(iid)] = {"label": self.labels[iid], "frames": [o.frame for o in obs_list],
-                               "lidar_view_frames": sorted(int(f) for f in views)}
-            for f, points in views.items():
-                arrays[f"{iid}_{f}_lidar_view"] = points
+            index[str(iid)] = {"label": self.labels[iid], "frames": [o.frame for o in obs_list]}
             for o in obs_list:
                 arrays[f"{iid}_{o.frame}_points"] = o.points
                 arrays[f"{iid}_{o.frame}_image_ids"] = o.image_ids
@@ -119,7 +110,7 @@ class LiftedInstances:
     @classmethod
     def load(cls, path: Path) -> "LiftedInstances":
         data, index = load_npz(path)
-        labels, observations, views = {}, {}, {}
+        labels, observations = {}, {}
         for key, entry in index.items():
             iid = int(key)
             labels[iid] = entry["label"]
@@ -128,9 +119,7 @@ class LiftedInstances:
                                     data.get(f"{iid}_{f}_times"), _optional_float(data.get(f"{iid}_{f}_seen_fraction")))
                 for f in entry["frames"]
             ]
-            if entry.get("lidar_view_frames"):
-                views[iid] = {int(f): data[f"{iid}_{f}_lidar_view"] for f in entry["lidar_view_frames"]}
-        return cls(labels, observations, views)
+        return cls(labels, observations)
 
 
 def _optional_float(value) -> Optional[float]:

@@ -24,7 +24,7 @@ from idsplat_ns.instances.smoothing import SmoothingConfig
 from idsplat_ns.instances.smoothing.instance_tracks import smooth_tracks, uses_ground
 from idsplat_ns.instances.features.config import FeatureConfig, make_feature_extractor, resolve_feature_kind
 from idsplat_ns.instances.masks.lidar_motion import LidarMotionMaskSource
-from idsplat_ns.instances.lidar_motion_lifting import lift_track_points
+from idsplat_ns.instances.lidar_motion_lifting import lift_track_points, load_lidar_views
 from idsplat_ns.instances.lifting import LiftedInstances, LiftingConfig, lift_instances
 from idsplat_ns.instances.masks.base import InstanceMaskSet
 from idsplat_ns.instances.masks.config import MaskConfig, make_mask_source, resolve_mask_kind
@@ -38,8 +38,9 @@ from idsplat_ns.instances.tracks import InstanceTracks
 # Bumped when what the registration stage stores changes (2: per-point origin frames; 3: ray times).
 TRACKS_FORMAT = 3
 # Bumped when what the lifting stage stores changes (2: per-point ray times; 3: the share of a
-# lidar-motion cluster the cameras see; 4: every lidar-motion cluster whole, seen or not).
-LIFTING_FORMAT = 4
+# lidar-motion cluster the cameras see; 4: every lidar-motion cluster whole, seen or not; 5: not
+# those again, registration reads them from the mask folder).
+LIFTING_FORMAT = 5
 # Bumped when the registration gives other results for the same settings, so that a cache made by
 # older code is not reused (2: ICP linearised about the pairs' centroid; 3: heading turns about the
 # amodal centre, parked instances not turned; 5: segments linked along the box's axis, not the
@@ -219,9 +220,14 @@ def run_preprocessing(
     t0 = time.perf_counter()
     reg_key = hash_json({"features": feat_key, "trajectory": asdict(config.trajectory), "format": TRACKS_FORMAT,
                          "version": REGISTRATION_VERSION})
+    # Carrying out of the cameras' view reads the lidar-motion clusters whole from the mask folder
+    # (in the key through the lifting's): other mask sources know no points the cameras missed.
+    carry = own_points and config.trajectory.out_of_view_frames > 0
     tracks, cached = _cached_file(
         cache_dir / f"registration-{reg_key}.npz",
-        lambda: estimate_trajectories(scene, lifted, features, config.trajectory, progress, config.workers),
+        lambda: estimate_trajectories(
+            scene, lifted, features, config.trajectory, progress, config.workers,
+            load_lidar_views(scene, masks.root, lifted.observations, config.lifting.min_points) if carry else None),
         lambda r, p: r.save(p), InstanceTracks.load)
     tracks.metadata.update({"mask_source": masks.source})
     timings.append(StageTiming("registration", time.perf_counter() - t0, cached, config.trajectory.method))

@@ -110,16 +110,19 @@ def estimate_trajectories(
     config: TrajectoryConfig = TrajectoryConfig(),
     progress: bool = True,
     workers: int = 1,
+    lidar_views: Optional[Mapping[int, Mapping[int, np.ndarray]]] = None,
 ) -> InstanceTracks:
     """Trajectories of every lifted instance (before static conversion and smoothing), registered
     in ``workers`` processes (0: one per core for a large scene; process_pool.py): the tracks do
-    not depend on it."""
+    not depend on it. ``lidar_views`` (per instance, frame -> [N, 3] world points of all its lidar
+    returns; lidar_motion_lifting.load_lidar_views) are what ``config.out_of_view_frames`` carries
+    an instance through where no camera saw it."""
     items = [(iid, obs) for iid, obs in sorted(lifted.observations.items())
              if obs and max(len(o.points) for o in obs) >= config.min_points]
     times = np.asarray(scene.frame_times, np.float64)
     sensors = scene.lidar_positions() if getattr(scene, "lidar", None) else None  # [F, 3]
     # The whole lidar views only where they are read: every cluster of every frame, pickled to each worker.
-    views = lifted.lidar_views if config.out_of_view_frames > 0 else {}
+    views = lidar_views if lidar_views is not None and config.out_of_view_frames > 0 else {}
     jobs = [_InstanceJob(iid, lifted.labels[iid], obs, None if features is None else features.of_instance(iid),
                          views.get(iid, {})) for iid, obs in items]
     workers = resolve_workers(workers, len(jobs), sum(len(obs) for _, obs in items), REGISTRATION_MIN_OBSERVATIONS)
