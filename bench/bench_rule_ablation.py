@@ -136,11 +136,16 @@ RULES = [
          "split segments joined back to their instance through the vehicle's box"),
     Rule("with-out-of-view", "registration", "trajectory.out_of_view_frames", 20,
          "a vehicle's track carried through the frames where only the lidar saw it (off by default)", default_on=False),
+    Rule("with-people-centroid", "registration", "trajectory.people_method", "centroid",
+         "pedestrians placed by their points' centroids instead of registered (off by default)", default_on=False),
     # Lifting (new lifting, features and registration per street).
     Rule("full-erosion", "lifting", "lifting.min_kept_area", 0.0,
          "masks eroded less where 3 px would remove more than half of a small mask"),
     Rule("with-ground-neighbourhood", "lifting", "masks.lidar_motion.ground_neighbourhood", 2.0,
          "lidar motion's ground no higher than the lowest cell within 2 m + 0.15 m (off by default)", default_on=False),
+    Rule("with-thin-people", "lifting", "masks.lidar_motion.thin_max_height", 1.5,
+         "lidar motion keeps clusters thinner than min_footprint that span at most 1.5 m in height (off by default)",
+         default_on=False),
 ]
 RULE_BY_NAME = {r.name: r for r in RULES}
 

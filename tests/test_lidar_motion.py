@@ -14,7 +14,8 @@ import pytest
 from idsplat_ns.data.lidar import LidarSweep
 from idsplat_ns.data.tracks import class_from_size_speed
 from idsplat_ns.instances.free_space import _SweepRays
-from idsplat_ns.instances.lidar_motion import fits_footprint, ground_heights, merge_parts, moving_tracks, object_points
+from idsplat_ns.instances.lidar_motion import (cluster_sweep, fits_footprint, ground_heights, merge_parts, moving_tracks,
+                                               object_points)
 from idsplat_ns.instances.motion_tracks import LidarMotionConfig, MotionCluster, MotionTrack
 
 
@@ -380,3 +381,20 @@ def test_a_track_handed_over_on_a_turn_merges_but_cars_abreast_do_not():
     # Two sweeps shared at the end of one and the start of the other, but heading the other way.
     oncoming = MotionTrack(5, [blob(k, [1.3 - 0.5 * (k - 8), 0.0, 0.0]) for k in range(8, 20)])
     assert not _parts_of_one_object(first, oncoming, hand_over)
+
+
+def test_a_thin_person_is_a_cluster_when_asked_and_a_pole_never():
+    """A person seen from one side is narrower than ``min_footprint`` in every direction, as a pole
+    is; ``thin_max_height`` keeps the one whose points span a person's height, not the pole's."""
+    rng = np.random.default_rng(4)
+    person = np.c_[rng.uniform(0, 0.3, 120), rng.uniform(0, 0.25, 120), rng.uniform(0.3, 1.6, 120)]
+    pole = np.c_[rng.uniform(5, 5.15, 150), rng.uniform(0, 0.15, 150), rng.uniform(0.3, 3.8, 150)]
+    car = np.c_[rng.uniform(10, 14, 400), rng.uniform(0, 1.8, 400), rng.uniform(0.3, 1.4, 400)]
+    points = np.concatenate([person, pole, car])
+    times = np.zeros(len(points))
+
+    def centres(config):
+        return sorted(round(float(c.points[:, 0].mean())) for c in cluster_sweep(points, times, 0, config))
+
+    assert centres(LidarMotionConfig()) == [12]
+    assert centres(LidarMotionConfig(thin_max_height=1.5)) == [0, 12]

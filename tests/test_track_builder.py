@@ -119,3 +119,26 @@ def test_centroid_ablation_translates_by_the_centroid_shift() -> None:
     shift = obs[4].points.mean(0) - obs[2].points.mean(0)
     np.testing.assert_allclose(b.poses[4][:3, 3] - b.poses[2][:3, 3], shift)
     np.testing.assert_allclose(b.poses[4][:3, :3], np.eye(3))
+
+
+def test_people_take_their_own_method_through_the_whole_stage() -> None:
+    """``people_method`` applies to pedestrians only (a car keeps ``method``), and through the whole
+    registration stage a walker is placed by its points' centroids, with no rotation."""
+    from types import SimpleNamespace
+
+    from idsplat_ns.instances.lifting import LiftedInstances
+    from idsplat_ns.instances.trajectory_config import config_for_label
+    from idsplat_ns.instances.trajectory_estimation import estimate_trajectories
+
+    config = TrajectoryConfig(people_method="centroid")
+    assert config_for_label(config, "pedestrian").method == "centroid"
+    assert config_for_label(config, "car").method == "registration"
+    assert config_for_label(TrajectoryConfig(), "pedestrian").method == "registration"
+    _, obs, _ = _observations()
+    scene = SimpleNamespace(num_frames=6, frame_times=np.arange(6) * 0.1, frame_indices=np.arange(6))
+    (walker,) = estimate_trajectories(scene, LiftedInstances({1: "pedestrian"}, {1: obs}), None, config,
+                                      progress=False).instances
+    assert walker.valid.all()
+    shift = obs[4].points.mean(0) - obs[2].points.mean(0)
+    np.testing.assert_allclose(walker.poses[4][:3, 3] - walker.poses[2][:3, 3], shift)
+    np.testing.assert_allclose(walker.poses[4][:3, :3], np.eye(3))

@@ -69,7 +69,8 @@ def cluster_sweep(points: np.ndarray, times: np.ndarray, frame: int, config: Lid
     for lab in np.unique(labels[labels >= 0]):
         sel = labels == lab
         extent = np.ptp(points[sel, :2], axis=0).max()
-        if sel.sum() < config.min_points or not config.min_footprint <= extent <= config.max_extent:
+        thin_person = 0 < config.thin_max_height and extent < config.min_footprint and np.ptp(points[sel, 2]) <= config.thin_max_height
+        if sel.sum() < config.min_points or extent > config.max_extent or (extent < config.min_footprint and not thin_person):
             continue
         out.append(MotionCluster(frame, points[sel], times[sel]))
     return out

@@ -3,9 +3,10 @@ each pass of the track builder (:mod:`idsplat_ns.instances.trajectory_passes`)."
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal, Optional
 
+from idsplat_ns.data.tracks import label_group
 from idsplat_ns.instances.heading_flips import HeadingFlipConfig
 from idsplat_ns.instances.registration import RegistrationConfig
 from idsplat_ns.instances.segment_linking import SegmentLinkConfig
@@ -18,6 +19,10 @@ class TrajectoryConfig:
 
     method: Literal["registration", "centroid"] = "registration"
     """``registration`` (the paper) or ``centroid`` (ablation c: translation from point centroids)."""
+    people_method: Optional[Literal["registration", "centroid"]] = None
+    """Ours: the method for instances whose class is a pedestrian (None: ``method``). A walker is
+    not rigid: its swinging limbs change the cluster's shape from sweep to sweep, and registration
+    can slide metres off where the centroid stays on the person."""
     registration: RegistrationConfig = field(default_factory=RegistrationConfig)
     """RANSAC settings."""
     min_points: int = 10
@@ -93,3 +98,10 @@ class TrajectoryConfig:
     link_segments: SegmentLinkConfig = field(default_factory=SegmentLinkConfig)
     """Split segments joined back to their instance through the vehicle's box (ours; see
     instances/segment_linking.py). Needs the sensor positions (lidar sweeps)."""
+
+
+def config_for_label(config: TrajectoryConfig, label: str) -> TrajectoryConfig:
+    """``config`` for an instance of class ``label``: ``people_method`` for a pedestrian."""
+    if config.people_method is None or config.people_method == config.method or label_group(label) != "pedestrian":
+        return config
+    return replace(config, method=config.people_method)

@@ -27,7 +27,7 @@ from idsplat_ns.instances.segment_linking import link_segment
 from idsplat_ns.instances.track_builder import TrackBuilder
 from idsplat_ns.instances.tracks import InstanceTrack, InstanceTracks
 # Run folders' config.yml name the settings class here, where it was defined until it got a module of its own.
-from idsplat_ns.instances.trajectory_config import TrajectoryConfig
+from idsplat_ns.instances.trajectory_config import TrajectoryConfig, config_for_label
 from idsplat_ns.instances.trajectory_passes import build_track
 
 __all__ = ["TrajectoryConfig", "estimate_instance_track", "estimate_trajectories"]
@@ -75,7 +75,7 @@ class _InstanceJob:
 def _instance_tracks(scene: _SceneInputs, job: _InstanceJob) -> tuple[InstanceTrack, list[InstanceTrack], list[int]]:
     """The instance's track, the segments split off it (instance ids to be given by the caller) and
     the frame counts of the segments linked back into it."""
-    config, obs = scene.config, job.observations
+    config, obs = config_for_label(scene.config, job.label), job.observations
     track = estimate_instance_track(job.iid, job.label, obs, job.features, scene.num_frames, config, scene.times,
                                     sensor_positions=scene.sensors)
     segments, linked_frames = [], []
