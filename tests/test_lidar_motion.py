@@ -15,7 +15,7 @@ from idsplat_ns.data.lidar import LidarSweep
 from idsplat_ns.data.tracks import class_from_size_speed
 from idsplat_ns.instances.free_space import _SweepRays
 from idsplat_ns.instances.lidar_motion import (cluster_sweep, fits_footprint, ground_heights, merge_parts, moving_tracks,
-                                               object_points)
+                                               object_points, person_views)
 from idsplat_ns.instances.motion_tracks import LidarMotionConfig, MotionCluster, MotionTrack
 
 
@@ -398,3 +398,19 @@ def test_a_thin_person_is_a_cluster_when_asked_and_a_pole_never():
 
     assert centres(LidarMotionConfig()) == [12]
     assert centres(LidarMotionConfig(thin_max_height=1.5)) == [0, 12]
+
+
+def test_a_persons_track_drops_the_views_where_it_joined_a_neighbours_cluster():
+    """A track whose median cluster is person-wide keeps only its person-sized clusters (a walker
+    merged with a parked car for a sweep); a car's track keeps its narrow first views."""
+    rng = np.random.default_rng(6)
+
+    def cluster(frame, width):
+        return MotionCluster(frame, np.c_[rng.uniform(0, width, 40), rng.uniform(0, 0.3, 40), rng.uniform(0.3, 1.6, 40)],
+                             np.zeros(40))
+
+    walker = MotionTrack(1, [cluster(k, w) for k, w in enumerate([0.4, 0.3, 3.8, 0.5, 0.4])])
+    kept = person_views(walker, 0.6)
+    assert [c.frame for c in kept.clusters] == [0, 1, 3, 4]
+    car = MotionTrack(2, [cluster(k, w) for k, w in enumerate([0.5, 1.2, 3.9, 4.4, 4.5])])
+    assert person_views(car, 0.6) is car

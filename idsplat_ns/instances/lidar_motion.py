@@ -30,6 +30,7 @@ writes step 5 is masks/lidar_motion.py.
 
 from __future__ import annotations
 
+from dataclasses import replace
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -38,6 +39,7 @@ from tqdm import tqdm
 
 from idsplat_ns.data.lidar import LidarSweep
 from idsplat_ns.data.scene import Scene
+from idsplat_ns.data.tracks import PEDESTRIAN_MAX_FOOTPRINT
 from idsplat_ns.errors import IDSplatError
 from idsplat_ns.instances.free_space import EvidenceSweeps, motion_compensated_scores, score_clusters
 from idsplat_ns.instances.ground import capped_by_neighbours, cell_heights, cell_keys
@@ -132,9 +134,21 @@ def moving_tracks(scene: Scene, config: LidarMotionConfig, progress: bool = Fals
     score = (lambda tr: tr.motion_score()) if config.compensate_own_motion else (lambda tr: tr.median_score())
     moving = [tr for tr in long_enough if score(tr) > config.moving_score and tr.displacement() >= min_displacement(tr, config)]
     moving = merge_parts(moving, config)
+    if config.thin_max_height > 0:  # after merging: the part a walker joined may have been a track of its own
+        moving = [person_views(tr, config.person_track_footprint) for tr in moving]
     for n, tr in enumerate(moving, start=1):
         tr.track_id = n
     return moving
+
+
+def person_views(track: MotionTrack, median_footprint: float) -> MotionTrack:
+    """``track`` without its clusters wider than a person's footprint when its median cluster is
+    at most ``median_footprint`` wide (a person's track: see ``LidarMotionConfig.person_track_footprint``)."""
+    widths = np.array([np.ptp(c.points[:, :2], axis=0).max() for c in track.clusters])
+    if len(widths) == 0 or np.median(widths) > median_footprint:
+        return track
+    fits = widths <= PEDESTRIAN_MAX_FOOTPRINT[0]
+    return track if fits.all() else replace(track, clusters=[c for c, ok in zip(track.clusters, fits) if ok])
 
 
 def min_displacement(track: MotionTrack, config: LidarMotionConfig) -> float:
