@@ -4,7 +4,9 @@ users with no Grounded-SAM-2 files or no GPU).
 1. **Ground**: each 0.5 m cell's height is a low rank of the points of all sweeps falling in it (the
    road is seen wherever a car has moved away); points more than ``min_height`` above it are kept.
 2. **Clusters**: DBSCAN of each sweep's kept points, as 0.1 m voxels weighted by their point
-   counts (voxel_dbscan.py); clusters of object size survive.
+   counts (voxel_dbscan.py); clusters of object size survive (with ``thin_max_height``, also a
+   walker's, thinner than a pole but not as tall; a walker's track then keeps only its
+   person-sized clusters).
 3. **Free space** (free_space.py): a cluster point seen at time t is tested against sweeps
    ``evidence_offsets_s`` before and after: the ray of that sweep nearest in direction to the point
    either ends near it (occupied then: static evidence), passes beyond it or returns nothing (free
@@ -71,8 +73,11 @@ def cluster_sweep(points: np.ndarray, times: np.ndarray, frame: int, config: Lid
     for lab in np.unique(labels[labels >= 0]):
         sel = labels == lab
         extent = np.ptp(points[sel, :2], axis=0).max()
-        thin_person = 0 < config.thin_max_height and extent < config.min_footprint and np.ptp(points[sel, 2]) <= config.thin_max_height
-        if sel.sum() < config.min_points or extent > config.max_extent or (extent < config.min_footprint and not thin_person):
+        # A walker seen from one side is as thin as a pole; its height tells them apart (thin_max_height).
+        thin_person = (0 < config.thin_max_height and extent < config.min_footprint
+                       and np.ptp(points[sel, 2]) <= config.thin_max_height)
+        too_thin = extent < config.min_footprint and not thin_person
+        if sel.sum() < config.min_points or extent > config.max_extent or too_thin:
             continue
         out.append(MotionCluster(frame, points[sel], times[sel]))
     return out
