@@ -30,13 +30,18 @@ from idsplat_ns.instances.lifting import InstanceObservation, LiftedInstances, L
 from idsplat_ns.instances.masks.lidar_motion import TRACK_POINTS
 
 
-def lift_track_points(scene: Scene, mask_dir: Path, labels: dict[int, str], config: LiftingConfig,
-                      progress: bool = True) -> LiftedInstances:
-    """:class:`LiftedInstances` of the tracks stored in ``mask_dir`` by :func:`~idsplat_ns.instances.masks.lidar_motion.save_track_points`."""
+def _read_track_points(mask_dir: Path) -> tuple[dict, dict]:
+    """The arrays and index of ``mask_dir``'s :data:`TRACK_POINTS` (one line naming it if missing)."""
     path = Path(mask_dir) / TRACK_POINTS
     if not path.is_file():
         raise IDSplatError(f"{path}: missing; delete {mask_dir} so that the lidar-motion masks are made again")
-    data, index = load_npz(path)
+    return load_npz(path)
+
+
+def lift_track_points(scene: Scene, mask_dir: Path, labels: dict[int, str], config: LiftingConfig,
+                      progress: bool = True) -> LiftedInstances:
+    """:class:`LiftedInstances` of the tracks stored in ``mask_dir`` by :func:`~idsplat_ns.instances.masks.lidar_motion.save_track_points`."""
+    data, index = _read_track_points(mask_dir)
     position = {int(f): k for k, f in enumerate(scene.frame_indices)}
     # Each image belongs to the frame of its closest sweep, as in painting.
     images_of_frame: dict[int, list[int]] = defaultdict(list)
@@ -75,10 +80,7 @@ def load_lidar_views(scene: Scene, mask_dir: Path, instance_ids: Iterable[int],
     """Per instance of ``instance_ids``, frame (position in ``scene.frame_indices``) -> [N, 3]
     world points: every cluster of at least ``min_points`` returns that ``mask_dir``'s
     :data:`TRACK_POINTS` holds, whether a camera saw it or not."""
-    path = Path(mask_dir) / TRACK_POINTS
-    if not path.is_file():
-        raise IDSplatError(f"{path}: missing; delete {mask_dir} so that the lidar-motion masks are made again")
-    data, index = load_npz(path)
+    data, index = _read_track_points(mask_dir)
     position = {int(f): k for k, f in enumerate(scene.frame_indices)}
     wanted = {int(i) for i in instance_ids}
     views: dict[int, dict[int, np.ndarray]] = {}
