@@ -89,9 +89,10 @@ class TrajectoryConfig:
     it, while that stays within ``chain_max_deviation`` of the prediction and fits
     (instances/out_of_view.py). A car overtaking from behind was placed only from its 12th frame,
     and one passing the other way ended at 4 m beside the ego, while the held-out frame after it
-    still showed its side. 20 closed half the DPSNR gap to annotated tracks on two unseen `hard`
-    streets but cost 0.6 dB PSNR on the default street (docs/reports/2026-11-28-out-of-view.md),
-    so it is off (0) by default."""
+    still showed its side. 20 gains 0.07-0.72 dB DPSNR on four unseen `hard` streets but loses
+    0.2-0.5 dB on `small` ones, where an overtaking car's carried frames inherit the error of its
+    first, sliver views (docs/reports/2026-11-29-people-and-carrying.md), so it is off (0) by
+    default."""
     heading_flips: HeadingFlipConfig = field(default_factory=HeadingFlipConfig)
     """Registrations whose heading disagrees with the direction of travel (front/back flips,
     quarter turns), turned back (ours; see instances/heading_flips.py)."""
