@@ -24,13 +24,13 @@ from idsplat_ns.batch.layout import read_eval
 from idsplat_ns.batch.sequences import load_sequences
 from idsplat_ns.errors import IDSplatError
 
-# torch (plan), matplotlib (aggregate) and Ray (runner, ray_cluster) take 1.5-4 s to import on 2
+# torch (plan), matplotlib (aggregate) and Ray (runner) take 1.5-4 s to import on 2
 # cores: they are imported where a batch runs, so that --help and option errors answer at once.
 if TYPE_CHECKING:
     from rich.console import Console
 
     from idsplat_ns.batch.plan import SequencePlan
-    from idsplat_ns.batch.runner import Outcome, StepResources
+    from idsplat_ns.batch.runner import Outcome
 
 MAX_EXIT_FAILURES = 100
 """Exit statuses above this are the shell's (126+: not executable, signals): the count is capped."""
@@ -92,7 +92,8 @@ def run_batch(argv: list[str]) -> int:
     from rich.console import Console
 
     from idsplat_ns.batch.plan import plan_sequence
-    from idsplat_ns.batch.runner import Outcome, Reporter, StepResources
+    from idsplat_ns.batch.ray_cluster import RayStart
+    from idsplat_ns.batch.runner import Outcome, Reporter, StepResources, run_on_ray
 
     args, user = parse_args(argv)
     sequences = load_sequences(args.sequences, args.data_root)
@@ -123,30 +124,9 @@ def run_batch(argv: list[str]) -> int:
         for p in plans:
             reporter.line(p.sequence.name, "skipped, already evaluated (eval.json)")
     else:
-        outcome = _run_on_ray(plans, args, resources, env, console, output_dir, n_steps)
+        ray_start = RayStart(args.address, args.num_cpus, args.num_gpus, args.object_store_mb)
+        outcome = run_on_ray(plans, ray_start, resources, env, console, output_dir / "batch.log", n_steps)
     return _report(plans, outcome, args.method, output_dir, console)
-
-
-def _run_on_ray(plans: list[SequencePlan], args: argparse.Namespace, resources: dict[str, StepResources],
-                env: dict[str, str], console: Console, output_dir: Path, n_steps: int) -> Outcome:
-    """Start or join Ray, run the plans under a progress bar; Ray is shut down whatever happens."""
-    import ray
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
-    from idsplat_ns.batch.ray_cluster import RayStart, start_ray
-    from idsplat_ns.batch.runner import Reporter, install_sigterm, run_plans
-
-    try:
-        start_ray(RayStart(args.address, args.num_cpus, args.num_gpus, args.object_store_mb))
-        install_sigterm()  # after ray.init, which installs a SIGTERM handler of its own that skips our cleanup
-        with Progress(TextColumn("batch"), BarColumn(), MofNCompleteColumn(), TextColumn("steps"), TimeElapsedColumn(),
-                      console=console, transient=False) as progress:
-            bar = progress.add_task("steps", total=max(n_steps, 1))
-            reporter = Reporter(output_dir / "batch.log", lambda msg: progress.console.print(msg, markup=False, highlight=False))
-            reporter.advance = lambda: progress.advance(bar)
-            return run_plans(plans, resources, reporter, env)
-    finally:
-        ray.shutdown()  # also on Ctrl-C/SIGTERM: workers, and with them the steps' subprocesses, end
 
 
 def _report(plans: list[SequencePlan], outcome: Outcome, method: str, output_dir: Path, console: Console) -> int:

@@ -10,12 +10,19 @@ import signal
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Optional
+from typing import TYPE_CHECKING, Callable, Optional
+
+import ray
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from idsplat_ns.batch.layout import read_status, write_status
 from idsplat_ns.batch.plan import SequencePlan, Step, finish_eval
+from idsplat_ns.batch.ray_cluster import RayStart, start_ray
 from idsplat_ns.batch.tasks import run_step
 from idsplat_ns.errors import IDSplatError
+
+if TYPE_CHECKING:
+    from rich.console import Console
 
 
 @dataclass(frozen=True)
@@ -51,8 +58,6 @@ class Outcome:
 
 def check_feasible(resources: dict[str, dict]) -> None:
     """One-line error when no Ray node can run a step's task (Ray would wait for it forever)."""
-    import ray
-
     nodes = [n.get("Resources", {}) for n in ray.nodes() if n.get("Alive")]
     names = {"num_cpus": "CPU", "num_gpus": "GPU", "memory": "memory"}
     for step, opts in resources.items():
@@ -97,8 +102,6 @@ def _describe_done(results: Optional[dict]) -> str:
 def run_plans(plans: list[SequencePlan], step_resources: dict[str, StepResources], reporter: Reporter,
               env: dict[str, str]) -> Outcome:
     """Run every plan's steps on the (started) Ray cluster; failures are recorded, not raised."""
-    import ray
-
     has_gpu = ray.cluster_resources().get("GPU", 0.0) >= 1.0
     options = {kind: res.ray_options(has_gpu) for kind, res in step_resources.items()}
     check_feasible(options)
@@ -170,3 +173,19 @@ def raise_keyboard_interrupt(signum, frame) -> None:
 
 def install_sigterm() -> None:
     signal.signal(signal.SIGTERM, raise_keyboard_interrupt)
+
+
+def run_on_ray(plans: list[SequencePlan], ray_start: RayStart, resources: dict[str, StepResources],
+               env: dict[str, str], console: Console, log_path: Path, n_steps: int) -> Outcome:
+    """Start or join Ray, run the plans under a progress bar; Ray is shut down whatever happens."""
+    try:
+        start_ray(ray_start)
+        install_sigterm()  # after ray.init, which installs a SIGTERM handler of its own that skips our cleanup
+        with Progress(TextColumn("batch"), BarColumn(), MofNCompleteColumn(), TextColumn("steps"), TimeElapsedColumn(),
+                      console=console, transient=False) as progress:
+            bar = progress.add_task("steps", total=max(n_steps, 1))
+            reporter = Reporter(log_path, lambda msg: progress.console.print(msg, markup=False, highlight=False))
+            reporter.advance = lambda: progress.advance(bar)
+            return run_plans(plans, resources, reporter, env)
+    finally:
+        ray.shutdown()  # also on Ctrl-C/SIGTERM: workers, and with them the steps' subprocesses, end
