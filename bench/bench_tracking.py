@@ -139,18 +139,25 @@ def distance_table(vehicles: list["ObjectRecord"]) -> str:
     bands = len(DISTANCE_BANDS) - 1
     lost, seen = np.zeros(bands, int), np.zeros(bands, int)
     errors: list[list[float]] = [[] for _ in range(bands)]
+    along: list[list[float]] = [[] for _ in range(bands)]
     for r in vehicles:
         band = np.clip(np.searchsorted(DISTANCE_BANDS, r.distance_to_ego, side="right") - 1, 0, bands - 1)
         np.add.at(seen, band, 1)
         np.add.at(lost, band, ~np.asarray(r.tracked, bool))
-        for b, tracked, err in zip(band, r.tracked, r.error):
+        for b, tracked, err, err_along in zip(band, r.tracked, r.error, r.along_error, strict=True):
             if tracked and np.isfinite(err):
                 errors[b].append(float(err))
+                along[b].append(abs(float(err_along)))
     names = [f"{a:.0f}-{b:.0f} m" for a, b in zip(DISTANCE_BANDS[:-1], DISTANCE_BANDS[1:])]
-    median = [f"{np.median(e):.2f}" if e else "-" for e in errors]
+
+    def row(title: str, values: list[list[float]], q: float) -> str:
+        return f"| {title} | " + " | ".join(f"{np.quantile(v, q):.2f}" if v else "-" for v in values) + " |"
+
     return "\n".join(["| vehicles | " + " | ".join(names) + " |", "|---|" + "---|" * len(names),
                       "| frames lost / counted | " + " | ".join(f"{a} / {b}" for a, b in zip(lost, seen)) + " |",
-                      "| median error of tracked frames, m | " + " | ".join(median) + " |"])
+                      row("median error of tracked frames, m", errors, 0.5),
+                      row("90th percentile of that error, m", errors, 0.9),
+                      row("90th percentile of its part along the heading, m", along, 0.9)])
 
 
 def manoeuvre_table(records: list[tuple[int, "ObjectRecord"]]) -> str:

@@ -138,3 +138,26 @@ def test_moving_object_map_of_the_builtin_street(tiny_street):
     # Mostly the same object: overlapping boxes are ordered by their centres' distance, which a
     # long vehicle's near end can contradict.
     assert agree / total > 0.6
+
+
+def test_along_error_is_the_part_of_the_error_along_the_heading(scene):
+    """Predictions 0.3 m ahead in world x and 0.4 m in world y of every moving object: the close
+    car heads along world x (0.3 m of its 0.5 m error lie along it), a turned car splits the same
+    offset by its yaw."""
+    turned = replace(scene.tracks[-1], track_id="turned", poses=scene.tracks[-1].poses.copy())
+    yaw = np.radians(30.0)
+    turned.poses[:, :3, :3] = np.array([[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1]])
+    turned.poses[:, 1, 3] += 6.0  # beside the close car, not on it
+    scene = replace(scene, tracks=list(scene.tracks) + [turned])
+    offset = np.array([0.3, 0.4, 0.0])
+
+    def positions_at(t: float) -> dict:
+        f = int(round(t / 0.1))
+        return {trk.track_id: trk.poses[f, :3, 3] + offset for trk in scene.tracks if trk.moving}
+
+    records = {r.track_id: r for r in diagnose_objects(scene, positions_at, observed=EVERY_FRAME)}
+    assert np.allclose(records["close"].error, 0.5) and np.allclose(records["close"].along_error, 0.3)
+    assert np.allclose(records["turned"].along_error, 0.3 * np.cos(yaw) + 0.4 * np.sin(yaw))
+    assert records["close"].as_dict()["mean_along_error"] == pytest.approx(0.3)
+    lost = diagnose_objects(scene, _predictions(scene, {"close": {2}}), observed=EVERY_FRAME)
+    assert np.isnan(next(r for r in lost if r.track_id == "close").along_error[2])

@@ -42,6 +42,9 @@ class ObjectRecord:
     tracked: list[bool] = field(default_factory=list)  # matched at the threshold, per counted frame
     distance_to_ego: list[float] = field(default_factory=list)  # metres, per counted frame
     error: list[float] = field(default_factory=list)  # metres to the matched prediction (NaN where lost)
+    # metres of that error along the object's heading (signed, ahead > 0; NaN where lost): a view of
+    # its side alone fixes nothing along it, so a pass beside the ego slides there
+    along_error: list[float] = field(default_factory=list)
     predictions: list = field(default_factory=list)  # matched prediction id per counted frame (None where lost)
     dpsnr: Optional[float] = None  # PSNR of its pixels over the held-out images (dB)
     pixels: int = 0  # its pixels in the held-out images
@@ -82,7 +85,7 @@ class ObjectRecord:
             "frames_lost": self.frames_lost, "frames_near": self.frames_near, "frames_lost_near": self.frames_lost_near,
             "longest_lost": self.longest_lost, "fragments": self.fragments,
             "min_distance_to_ego": round(min(near), 2) if near else None,
-            "mean_error": _mean(self.error), "dpsnr": None if self.dpsnr is None else round(self.dpsnr, 2),
+            "mean_error": _mean(self.error), "mean_along_error": _mean(np.abs(self.along_error)), "dpsnr": None if self.dpsnr is None else round(self.dpsnr, 2),
             "lost_frames": [f for f, t in zip(self.frames, self.tracked) if not t],
         }  # fmt: skip
 
@@ -133,6 +136,8 @@ def diagnose_objects(
         rec.tracked.append(hit is not None)
         rec.predictions.append(None if hit is None else hit[0])
         rec.error.append(float("nan") if hit is None else hit[1])
+        offset = np.full(3, np.nan) if hit is None else np.asarray(pred[a.frame][hit[0]], np.float64) - a.pose[:3, 3]
+        rec.along_error.append(float(offset @ a.pose[:3, 0]))
         rec.distance_to_ego.append(float(np.linalg.norm(a.pose[:3, 3] - ego[a.frame])))
     for tid, (sse, count) in (object_errors or {}).items():
         if tid in records and count > 0:
