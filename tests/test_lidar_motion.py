@@ -414,3 +414,35 @@ def test_a_persons_track_drops_the_views_where_it_joined_a_neighbours_cluster():
     assert [c.frame for c in kept.clusters] == [0, 1, 3, 4]
     car = MotionTrack(2, [cluster(k, w) for k, w in enumerate([0.5, 1.2, 3.9, 4.4, 4.5])])
     assert person_views(car, 0.6) is car
+
+
+def test_a_u_turn_split_in_two_hands_over_by_the_velocities_where_the_halves_meet():
+    from idsplat_ns.instances.lidar_motion import _parts_of_one_object
+    from idsplat_ns.instances.motion_tracks import LidarMotionConfig, MotionCluster, MotionTrack
+
+    rng = np.random.default_rng(2)
+
+    def blob(frame: int, centre) -> MotionCluster:
+        pts = np.asarray(centre, float) + rng.uniform([-1.0, -0.5, 0.3], [1.0, 0.5, 1.5], size=(40, 3))
+        return MotionCluster(frame, pts, np.full(40, 0.1 * frame))
+
+    # A car drives along +x at 5 m/s, then turns (a quarter turn around (5, 5) in sweeps 8-12);
+    # the second half, from sweep 11 on, goes on round the turn and back along -x.
+    def centre(k: int) -> list:
+        if k <= 8:
+            return [0.5 * k - 4.0, 0.0, 0.0]
+        angle = min((k - 8) * np.pi / 8, np.pi)
+        if angle < np.pi:
+            return [4.0 * np.sin(angle), 4.0 - 4.0 * np.cos(angle), 0.0]
+        return [-0.5 * (k - 16), 8.0, 0.0]
+
+    first = MotionTrack(1, [blob(k, centre(k)) for k in range(0, 12)])
+    second = MotionTrack(2, [blob(k, centre(k)) for k in range(11, 24)])
+    assert float(first.mean_velocity()[:2] @ second.mean_velocity()[:2]) < 0  # opposite over their lives
+    whole_lives = LidarMotionConfig(merge_hand_over_sweeps=2, hand_over_velocity_sweeps=0)
+    assert not _parts_of_one_object(first, second, whole_lives)
+    assert _parts_of_one_object(first, second, LidarMotionConfig(merge_hand_over_sweeps=2, hand_over_velocity_sweeps=3))
+    # Two cars meeting head-on at a junction sweep still head opposite ways there.
+    oncoming = MotionTrack(3, [blob(k, [float(centre(11)[0]) - 0.5 * (k - 11), float(centre(11)[1]), 0.0]) for k in range(11, 24)])
+    incoming = MotionTrack(4, [blob(k, [float(centre(11)[0]) + 0.5 * (k - 11), float(centre(11)[1]), 0.0]) for k in range(0, 12)])
+    assert not _parts_of_one_object(incoming, oncoming, LidarMotionConfig(merge_hand_over_sweeps=2, hand_over_velocity_sweeps=3))
