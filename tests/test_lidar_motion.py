@@ -418,7 +418,6 @@ def test_a_persons_track_drops_the_views_where_it_joined_a_neighbours_cluster():
 
 def test_a_u_turn_split_in_two_hands_over_by_the_velocities_where_the_halves_meet():
     from idsplat_ns.instances.lidar_motion import _parts_of_one_object
-    from idsplat_ns.instances.motion_tracks import LidarMotionConfig, MotionCluster, MotionTrack
 
     rng = np.random.default_rng(2)
 
@@ -426,8 +425,8 @@ def test_a_u_turn_split_in_two_hands_over_by_the_velocities_where_the_halves_mee
         pts = np.asarray(centre, float) + rng.uniform([-1.0, -0.5, 0.3], [1.0, 0.5, 1.5], size=(40, 3))
         return MotionCluster(frame, pts, np.full(40, 0.1 * frame))
 
-    # A car drives along +x at 5 m/s, then turns (a quarter turn around (5, 5) in sweeps 8-12);
-    # the second half, from sweep 11 on, goes on round the turn and back along -x.
+    # A car drives along +x at 5 m/s, makes a U-turn (a half circle of 4 m radius about (0, 4) in
+    # sweeps 8-16) and drives back along -x; its track breaks at sweep 11, mid-turn.
     def centre(k: int) -> list:
         if k <= 8:
             return [0.5 * k - 4.0, 0.0, 0.0]

@@ -186,14 +186,15 @@ def _hands_over(a: MotionTrack, b: MotionTrack, shared: int, va: np.ndarray, vb:
                 config: LidarMotionConfig) -> bool:
     """Whether one track ends in the sweeps where the other starts (at most ``merge_hand_over_sweeps``
     shared, the last of one and the first of the other) and both head the same way (within 60
-    degrees): one object's track handed over, not two objects side by side."""
+    degrees; where they meet, with ``hand_over_velocity_sweeps``): one object's track handed over,
+    not two objects side by side."""
     if not 0 < shared <= config.merge_hand_over_sweeps:
         return False
     first, second = (a, b) if a.clusters[0].frame <= b.clusters[0].frame else (b, a)
     if first.clusters[-1].frame > second.clusters[shared - 1].frame or second.clusters[-1].frame <= first.clusters[-1].frame:
         return False
     if config.hand_over_velocity_sweeps > 0:  # where they meet (see LidarMotionConfig.hand_over_velocity_sweeps)
-        k = max(config.hand_over_velocity_sweeps, shared + 1)
+        k = max(config.hand_over_velocity_sweeps, shared + 1)  # beyond the shared sweeps: a span of time
         va, vb = first.mean_velocity(slice(-k, None))[:2], second.mean_velocity(slice(0, k))[:2]
     speeds = float(np.linalg.norm(va) * np.linalg.norm(vb))
     return speeds > 0 and float(va @ vb) >= 0.5 * speeds

@@ -176,9 +176,11 @@ class MotionTrack:
         scores = [c.moved_score for c in self.clusters if np.isfinite(c.moved_score)]
         return float(np.median(scores)) if scores else self.median_score()
 
-    def duration(self) -> float:
-        """Seconds from the first cluster's mean ray time to the last's."""
-        return float(np.mean(self.clusters[-1].times) - np.mean(self.clusters[0].times)) if self.clusters else 0.0
+    def duration(self, clusters: Optional[slice] = None) -> float:
+        """Seconds from the first cluster's mean ray time to the last's (of ``clusters``, a slice of
+        them, where given)."""
+        part = self.clusters if clusters is None else self.clusters[clusters]
+        return float(np.mean(part[-1].times) - np.mean(part[0].times)) if part else 0.0
 
     def displacement(self) -> float:
         """Metres between the first and the last centroid on the ground."""
@@ -192,10 +194,10 @@ class MotionTrack:
     def mean_velocity(self, clusters: Optional[slice] = None) -> np.ndarray:  # -> [3] m/s
         """Centroid velocity from the first to the last cluster (of ``clusters``, a slice of them,
         where given; the last association's velocity for a single time)."""
-        part = self.clusters if clusters is None else self.clusters[clusters]
-        span = float(np.mean(part[-1].times) - np.mean(part[0].times)) if part else 0.0
+        span = self.duration(clusters)
         if span <= 0:
             return self.velocity
+        part = self.clusters if clusters is None else self.clusters[clusters]
         return (part[-1].centroid - part[0].centroid) / span
 
     def footprint(self) -> tuple[float, float]:
